@@ -1,0 +1,61 @@
+//! The library's error type: every failure names the file, frame or parameter it is about.
+
+use std::path::PathBuf;
+
+/// Errors returned by the depthmesh library.
+#[derive(Debug, thiserror::Error)]
+pub enum Error {
+    /// A file could not be opened, read or written.
+    #[error("{path}: {source}")]
+    Io {
+        /// The file concerned.
+        path: PathBuf,
+        /// The underlying I/O error.
+        source: std::io::Error,
+    },
+    /// A file was read but its content is not what it should be.
+    #[error("{path}: {message}")]
+    Format {
+        /// The file concerned.
+        path: PathBuf,
+        /// What is wrong, with a line or element number where one is known.
+        message: String,
+    },
+    /// A parameter has a value that makes no sense.
+    #[error("invalid {name}: {message}")]
+    Parameter {
+        /// The parameter (or flag) name.
+        name: String,
+        /// Why the value is rejected.
+        message: String,
+    },
+}
+
+impl Error {
+    /// An I/O error about `path`.
+    pub fn io(path: impl Into<PathBuf>, source: std::io::Error) -> Self {
+        Error::Io {
+            path: path.into(),
+            source,
+        }
+    }
+
+    /// A format error about `path`.
+    pub fn format(path: impl Into<PathBuf>, message: impl Into<String>) -> Self {
+        Error::Format {
+            path: path.into(),
+            message: message.into(),
+        }
+    }
+
+    /// A rejected parameter value.
+    pub fn parameter(name: impl Into<String>, message: impl Into<String>) -> Self {
+        Error::Parameter {
+            name: name.into(),
+            message: message.into(),
+        }
+    }
+}
+
+/// Result with the library's [`Error`].
+pub type Result<T, E = Error> = std::result::Result<T, E>;
