@@ -1,5 +1,7 @@
 //! Triangle meshes and their files.
 
+pub mod io;
+
 use glam::Vec3;
 
 /// An indexed triangle mesh. `normals` and `colors` are either empty or have
