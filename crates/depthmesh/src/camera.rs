@@ -70,12 +70,7 @@ impl Intrinsics {
 
     /// Projects a camera-space point to pixel coordinates; `None` behind the camera.
     pub fn project(&self, p: Vec3) -> Option<Vec2> {
-        (p.z > 0.0).then(|| {
-            Vec2::new(
-                self.fx * p.x / p.z + self.cx,
-                self.fy * p.y / p.z + self.cy,
-            )
-        })
+        (p.z > 0.0).then(|| Vec2::new(self.fx * p.x / p.z + self.cx, self.fy * p.y / p.z + self.cy))
     }
 
     /// The camera-space point at pixel `(u, v)` with depth `z` along the optical axis.
@@ -181,11 +176,7 @@ mod tests {
 
     #[test]
     fn pose_round_trip() {
-        let pose = Pose::look_at(
-            Vec3::new(3.0, 1.5, -2.0),
-            Vec3::new(0.0, 0.5, 0.0),
-            Vec3::Y,
-        );
+        let pose = Pose::look_at(Vec3::new(3.0, 1.5, -2.0), Vec3::new(0.0, 0.5, 0.0), Vec3::Y);
         let p = Vec3::new(0.3, -0.2, 1.7);
         let w = pose.transform_point(p);
         let back = pose.inverse().transform_point(w);

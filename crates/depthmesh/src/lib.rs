@@ -6,7 +6,11 @@
 pub mod camera;
 pub mod error;
 pub mod image;
+pub mod mabdi;
+pub mod map;
 pub mod mesh;
+pub mod palette;
+pub mod raster;
 
 pub use camera::{Intrinsics, Pose};
 pub use error::{Error, Result};

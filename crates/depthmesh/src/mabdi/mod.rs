@@ -1,0 +1,323 @@
+//! MABDI — Mesh Addition Based on the Depth Image (Chavez 2016): grow a global
+//! mesh only where the sensor sees what the mesh does not already predict.
+//!
+//! Per frame: render the expected depth E of the global mesh M from the
+//! sensor's pose ([`crate::raster`]), classify the pixels of D
+//! ([`classify`]), mesh the novel pixels only ([`mesher`]) and append that
+//! surface S to M, coloured by iteration. Beyond the thesis, triangles the
+//! sensor sees through are removed ([`removal`]). [`NaiveMapper`] is the
+//! thesis's "traditional method" that appends every frame's whole surface.
+
+pub mod classify;
+pub mod mesher;
+pub mod removal;
+
+use crate::camera::{Intrinsics, Pose};
+use crate::error::{Error, Result};
+use crate::image::{DepthImage, Frame};
+use crate::map::{IntegrateReport, MapStats, Mapper};
+use crate::mesh::Mesh;
+use crate::palette::iteration_color;
+use crate::raster::{Rasterizer, RenderTarget};
+use classify::{classify, PixelClass, Threshold};
+use mesher::DepthMesher;
+use removal::Carver;
+
+/// Parameters of mesh addition.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct MabdiConfig {
+    /// Sensor intrinsics; frames must match their size.
+    pub intrinsics: Intrinsics,
+    /// `|D − E|` above this is novel (eq. 3.1).
+    pub novelty: Threshold,
+    /// Neighbouring depths further apart than this are a boundary (eq. 3.4).
+    pub boundary: Threshold,
+    /// Remove triangles the sensor sees through; `None` keeps everything (the thesis).
+    pub removal: Option<RemovalConfig>,
+}
+
+/// Parameters of object removal (see [`removal`]).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct RemovalConfig {
+    /// How far beyond a triangle the measurement must be to contradict it.
+    pub threshold: Threshold,
+    /// Contradicting frames, without a confirmation between them, that remove a triangle.
+    pub frames: u8,
+}
+
+impl MabdiConfig {
+    /// The thesis's settings for a sensor with range `[near, far]` metres, with removal on.
+    pub fn thesis(intrinsics: Intrinsics, near: f32, far: f32) -> Self {
+        let t = Threshold::thesis(near, far);
+        MabdiConfig {
+            intrinsics,
+            novelty: t,
+            boundary: t,
+            removal: Some(RemovalConfig {
+                threshold: t,
+                frames: 2,
+            }),
+        }
+    }
+}
+
+/// The MABDI map: a global mesh grown by novel surface only.
+#[derive(Debug)]
+pub struct MabdiMapper {
+    config: MabdiConfig,
+    mesh: Mesh,
+    iteration: u32,
+    rasterizer: Rasterizer,
+    expected: RenderTarget,
+    classes: Vec<PixelClass>,
+    mesher: DepthMesher,
+    carver: Carver,
+    /// Where the novel surface S of the last frame starts in `mesh.triangles`.
+    last_novel_start: usize,
+}
+
+/// Checks a frame against the configured sensor.
+fn check_frame(frame: &Frame, intrinsics: &Intrinsics) -> Result<()> {
+    if frame.depth.width != intrinsics.width || frame.depth.height != intrinsics.height {
+        return Err(Error::parameter(
+            format!("frame {}", frame.index),
+            format!(
+                "depth image is {}×{} but the camera is {}×{}",
+                frame.depth.width, frame.depth.height, intrinsics.width, intrinsics.height
+            ),
+        ));
+    }
+    Ok(())
+}
+
+impl MabdiMapper {
+    /// An empty map.
+    pub fn new(config: MabdiConfig) -> Result<Self> {
+        config.intrinsics.validate()?;
+        Ok(MabdiMapper {
+            config,
+            mesh: Mesh::default(),
+            iteration: 0,
+            rasterizer: Rasterizer::new(),
+            expected: RenderTarget::default(),
+            classes: Vec::new(),
+            mesher: DepthMesher::new(),
+            carver: Carver::default(),
+            last_novel_start: 0,
+        })
+    }
+
+    /// The expected depth image E of the last frame.
+    pub fn expected(&self) -> &DepthImage {
+        &self.expected.depth
+    }
+
+    /// The pixel classes of the last frame.
+    pub fn classes(&self) -> &[PixelClass] {
+        &self.classes
+    }
+
+    /// The novel surface S added by the last frame (a range of the mesh's triangles).
+    pub fn last_novel_triangles(&self) -> &[[u32; 3]] {
+        &self.mesh.triangles[self.last_novel_start..]
+    }
+
+    /// Drops the triangles whose removal votes reached the limit, and the
+    /// vertices left unused.
+    fn remove_contradicted(&mut self, frames: u8) -> usize {
+        let before = self.mesh.triangles.len();
+        let mut index = 0;
+        let votes = &self.carver.votes;
+        self.mesh.triangles.retain(|_| {
+            index += 1;
+            votes[index - 1] < frames
+        });
+        self.carver.votes.retain(|&v| v < frames);
+        self.mesh.remove_unreferenced_vertices();
+        before - self.mesh.triangles.len()
+    }
+}
+
+impl Mapper for MabdiMapper {
+    fn name(&self) -> &'static str {
+        "mabdi"
+    }
+
+    fn integrate(&mut self, frame: &Frame, pose: &Pose) -> Result<IntegrateReport> {
+        let k = self.config.intrinsics;
+        check_frame(frame, &k)?;
+        self.iteration += 1;
+        // E is rendered with a tiny near plane: surface of M closer than the
+        // sensor's minimum range still hides what is behind it.
+        self.rasterizer.render(
+            &self.mesh.positions,
+            &self.mesh.triangles,
+            &k,
+            pose,
+            0.01,
+            &mut self.expected,
+        );
+        let novel_pixels = classify(
+            &frame.depth,
+            &self.expected.depth,
+            self.config.novelty,
+            self.config.boundary,
+            &mut self.classes,
+        );
+        let naive = DepthMesher::count(&self.classes, k.width, |c| {
+            c != PixelClass::Invalid && c != PixelClass::Boundary
+        });
+
+        let mut removed = 0;
+        if let Some(removal) = self.config.removal {
+            let any = self.carver.observe(
+                self.rasterizer.camera_points(),
+                &self.mesh.triangles,
+                &frame.depth,
+                &k,
+                removal.threshold,
+                removal.frames,
+            );
+            if any {
+                removed = self.remove_contradicted(removal.frames);
+            }
+        }
+
+        self.last_novel_start = self.mesh.triangles.len();
+        let added = self.mesher.mesh(
+            &frame.depth,
+            &self.classes,
+            |c| c == PixelClass::Novel,
+            &k,
+            pose,
+            &mut self.mesh.positions,
+            &mut self.mesh.triangles,
+        );
+        self.mesh
+            .colors
+            .resize(self.mesh.positions.len(), iteration_color(self.iteration));
+        Ok(IntegrateReport {
+            new_elements: added,
+            removed_elements: removed,
+            extra: vec![
+                ("novel_pixels", novel_pixels as f64),
+                ("naive_elements", naive as f64),
+            ],
+        })
+    }
+
+    fn render_depth(&self, intrinsics: &Intrinsics, pose: &Pose) -> DepthImage {
+        render_mesh_depth(&self.mesh, intrinsics, pose)
+    }
+
+    fn mesh(&mut self) -> &Mesh {
+        &self.mesh
+    }
+
+    fn stats(&self) -> MapStats {
+        mesh_stats(&self.mesh)
+    }
+}
+
+/// Depth of a mesh seen from a pose (a fresh rasterizer: for occasional use).
+fn render_mesh_depth(mesh: &Mesh, intrinsics: &Intrinsics, pose: &Pose) -> DepthImage {
+    let mut target = RenderTarget::default();
+    Rasterizer::new().render(
+        &mesh.positions,
+        &mesh.triangles,
+        intrinsics,
+        pose,
+        0.01,
+        &mut target,
+    );
+    target.depth
+}
+
+/// Size of a mesh map: 12 bytes a vertex position, 3 of colour, 12 a triangle.
+fn mesh_stats(mesh: &Mesh) -> MapStats {
+    MapStats {
+        elements: mesh.triangle_count(),
+        vertices: mesh.vertex_count(),
+        bytes: mesh.positions.len() * 15 + mesh.triangles.len() * 12,
+    }
+}
+
+/// The thesis's "traditional method": every frame's whole surface (valid,
+/// non-boundary pixels) is appended to the map.
+#[derive(Debug)]
+pub struct NaiveMapper {
+    config: MabdiConfig,
+    mesh: Mesh,
+    iteration: u32,
+    classes: Vec<PixelClass>,
+    mesher: DepthMesher,
+    /// An all-empty expected image.
+    nothing: DepthImage,
+}
+
+impl NaiveMapper {
+    /// An empty map; only the intrinsics and the boundary threshold of `config` are used.
+    pub fn new(config: MabdiConfig) -> Result<Self> {
+        config.intrinsics.validate()?;
+        Ok(NaiveMapper {
+            config,
+            mesh: Mesh::default(),
+            iteration: 0,
+            classes: Vec::new(),
+            mesher: DepthMesher::new(),
+            nothing: DepthImage::default(),
+        })
+    }
+}
+
+impl Mapper for NaiveMapper {
+    fn name(&self) -> &'static str {
+        "naive"
+    }
+
+    fn integrate(&mut self, frame: &Frame, pose: &Pose) -> Result<IntegrateReport> {
+        let k = self.config.intrinsics;
+        check_frame(frame, &k)?;
+        self.iteration += 1;
+        // Against an empty prediction every valid, non-boundary pixel is novel.
+        if self.nothing.data.len() != frame.depth.data.len() {
+            self.nothing = DepthImage::new(k.width, k.height);
+        }
+        classify(
+            &frame.depth,
+            &self.nothing,
+            self.config.novelty,
+            self.config.boundary,
+            &mut self.classes,
+        );
+        let added = self.mesher.mesh(
+            &frame.depth,
+            &self.classes,
+            |c| c == PixelClass::Novel,
+            &k,
+            pose,
+            &mut self.mesh.positions,
+            &mut self.mesh.triangles,
+        );
+        self.mesh
+            .colors
+            .resize(self.mesh.positions.len(), iteration_color(self.iteration));
+        Ok(IntegrateReport {
+            new_elements: added,
+            removed_elements: 0,
+            extra: vec![("naive_elements", added as f64)],
+        })
+    }
+
+    fn render_depth(&self, intrinsics: &Intrinsics, pose: &Pose) -> DepthImage {
+        render_mesh_depth(&self.mesh, intrinsics, pose)
+    }
+
+    fn mesh(&mut self) -> &Mesh {
+        &self.mesh
+    }
+
+    fn stats(&self) -> MapStats {
+        mesh_stats(&self.mesh)
+    }
+}
