@@ -162,8 +162,8 @@ impl Rasterizer {
                 for (i, t) in tris.iter().enumerate() {
                     let corners = t.map(|v| camera_points[v as usize]);
                     if let Some((r0, r1)) = row_span(&view, &corners) {
-                        for band in r0 / BAND_ROWS..=r1 / BAND_ROWS {
-                            bins[band].push(first + i as u32);
+                        for bin in &mut bins[r0 / BAND_ROWS..=r1 / BAND_ROWS] {
+                            bin.push(first + i as u32);
                         }
                     }
                 }
@@ -372,15 +372,15 @@ fn fill_polygon(
     let n = poly.n;
     let mut q = [[0i64; 2]; 8];
     let (mut x0, mut y0, mut x1, mut y1) = (i64::MAX, i64::MAX, i64::MIN, i64::MIN);
-    for i in 0..n {
-        q[i] = [
-            (poly.p[i][0] * SUBPIXEL).round() as i64,
-            (poly.p[i][1] * SUBPIXEL).round() as i64,
+    for (s, p) in q.iter_mut().zip(&poly.p[..n]) {
+        *s = [
+            (p[0] * SUBPIXEL).round() as i64,
+            (p[1] * SUBPIXEL).round() as i64,
         ];
-        x0 = x0.min(q[i][0]);
-        x1 = x1.max(q[i][0]);
-        y0 = y0.min(q[i][1]);
-        y1 = y1.max(q[i][1]);
+        x0 = x0.min(s[0]);
+        x1 = x1.max(s[0]);
+        y0 = y0.min(s[1]);
+        y1 = y1.max(s[1]);
     }
     let one = 1i64 << SUBPIXEL_BITS;
     // Pixel centres are at integer coordinates: the covered range is
