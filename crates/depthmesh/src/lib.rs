@@ -5,6 +5,7 @@
 
 pub mod camera;
 pub mod error;
+pub mod eval;
 pub mod image;
 pub mod mabdi;
 pub mod map;

@@ -6,7 +6,11 @@
 pub fn iteration_color(iteration: u32) -> [u8; 3] {
     let hue = (60.0 + 137.507_77 * iteration.saturating_sub(1) as f32) % 360.0;
     // Alternate the lightness a little so even close hues differ.
-    let value = if iteration.is_multiple_of(2) { 0.85 } else { 1.0 };
+    let value = if iteration.is_multiple_of(2) {
+        0.85
+    } else {
+        1.0
+    };
     hsv_to_rgb(hue, 0.85, value)
 }
 
