@@ -1,1 +1,42 @@
-fn main(){}
+//! `depthmesh`: depth images in, compact triangle-mesh maps out.
+
+mod demo;
+mod draw;
+mod output;
+mod progress;
+mod simulate;
+mod views;
+
+use clap::{Parser, Subcommand};
+use std::process::ExitCode;
+
+/// Turn depth images into compact, incrementally updated triangle-mesh maps.
+#[derive(Parser, Debug)]
+#[command(name = "depthmesh", version, about)]
+struct Cli {
+    #[command(subcommand)]
+    command: Command,
+}
+
+#[derive(Subcommand, Debug)]
+enum Command {
+    /// Map a simulated sensor circling a scene file.
+    Simulate(simulate::SimulateArgs),
+    /// Run the thesis's experiments on the built-in scenes and summarise them.
+    Demo(demo::DemoArgs),
+}
+
+fn main() -> ExitCode {
+    let cli = Cli::parse();
+    let result = match cli.command {
+        Command::Simulate(args) => simulate::run(&args).map(|_| ()),
+        Command::Demo(args) => demo::run(&args),
+    };
+    match result {
+        Ok(()) => ExitCode::SUCCESS,
+        Err(e) => {
+            eprintln!("error: {e:#}");
+            ExitCode::FAILURE
+        }
+    }
+}

@@ -1,0 +1,109 @@
+//! The output contract of a mapping run (DESIGN.md): `mesh.ply`,
+//! `trajectory.txt`, `stats.csv` and `summary.json` in the `--out` folder,
+//! each written whole or not at all.
+
+use anyhow::{Context, Result};
+use depthmesh::atomic::write_atomic;
+use depthmesh::map::IntegrateReport;
+use depthmesh::mesh::ply::{write_ply, PlyFormat};
+use depthmesh::trajectory::format_tum;
+use depthmesh::{Mesh, Pose};
+use serde_json::{Map, Value};
+use std::io::Write;
+use std::path::{Path, PathBuf};
+
+/// One row of `stats.csv`.
+#[derive(Clone, Debug)]
+pub struct FrameStats {
+    /// Frame number (iteration for the simulator).
+    pub frame: usize,
+    /// Milliseconds the mapper spent on the frame (no drawing or file writing).
+    pub ms: f64,
+    /// What the mapper reported.
+    pub report: IntegrateReport,
+    /// Map size after the frame.
+    pub total_elements: usize,
+    /// Mesh vertices after the frame.
+    pub total_vertices: usize,
+}
+
+/// Collects what a run produces and writes the contract files.
+#[derive(Debug)]
+pub struct RunOutput {
+    dir: PathBuf,
+    /// Per-frame rows, in order.
+    pub frames: Vec<FrameStats>,
+    /// Timestamped poses used for the frames.
+    pub trajectory: Vec<(f64, Pose)>,
+}
+
+impl RunOutput {
+    /// Prepares `dir` (created if missing).
+    pub fn create(dir: &Path) -> Result<Self> {
+        std::fs::create_dir_all(dir).with_context(|| format!("cannot create output folder {}", dir.display()))?;
+        Ok(RunOutput {
+            dir: dir.to_path_buf(),
+            frames: Vec::new(),
+            trajectory: Vec::new(),
+        })
+    }
+
+    /// A path inside the output folder.
+    pub fn path(&self, name: &str) -> PathBuf {
+        self.dir.join(name)
+    }
+
+    /// Total mapper time in seconds.
+    pub fn seconds(&self) -> f64 {
+        self.frames.iter().map(|f| f.ms).sum::<f64>() / 1000.0
+    }
+
+    /// Writes `mesh.ply`, `trajectory.txt`, `stats.csv` and `summary.json`.
+    /// `summary` holds the back-end specific keys; the common ones are added here.
+    pub fn finish(&self, map: &str, mesh: &Mesh, map_bytes: usize, mut summary: Map<String, Value>) -> Result<()> {
+        write_ply(&self.path("mesh.ply"), mesh, PlyFormat::BinaryLittleEndian)?;
+        let tum = format_tum(&self.trajectory);
+        write_atomic(&self.path("trajectory.txt"), |w| w.write_all(tum.as_bytes()))?;
+        self.write_stats()?;
+        let seconds = self.seconds();
+        let frames = self.frames.len();
+        summary.insert("frames".into(), frames.into());
+        summary.insert("seconds".into(), seconds.into());
+        summary.insert("fps".into(), if seconds > 0.0 { frames as f64 / seconds } else { 0.0 }.into());
+        summary.insert("map".into(), map.into());
+        summary.insert("triangles".into(), mesh.triangle_count().into());
+        summary.insert("vertices".into(), mesh.vertex_count().into());
+        summary.insert("map_bytes".into(), map_bytes.into());
+        let text = serde_json::to_string_pretty(&Value::Object(summary))?;
+        write_atomic(&self.path("summary.json"), |w| writeln!(w, "{text}"))?;
+        Ok(())
+    }
+
+    fn write_stats(&self) -> Result<()> {
+        let extra: Vec<&str> = self
+            .frames
+            .first()
+            .map(|f| f.report.extra.iter().map(|(k, _)| *k).collect())
+            .unwrap_or_default();
+        write_atomic(&self.path("stats.csv"), |w| {
+            write!(w, "frame,ms,new_elements,removed_elements,total_elements,total_vertices")?;
+            for k in &extra {
+                write!(w, ",{k}")?;
+            }
+            writeln!(w)?;
+            for f in &self.frames {
+                write!(
+                    w,
+                    "{},{:.3},{},{},{},{}",
+                    f.frame, f.ms, f.report.new_elements, f.report.removed_elements, f.total_elements, f.total_vertices
+                )?;
+                for (_, v) in &f.report.extra {
+                    write!(w, ",{v}")?;
+                }
+                writeln!(w)?;
+            }
+            Ok(())
+        })?;
+        Ok(())
+    }
+}
