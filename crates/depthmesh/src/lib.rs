@@ -7,6 +7,7 @@ pub mod camera;
 pub mod error;
 pub mod image;
 pub mod mesh;
+pub mod sim;
 pub mod trajectory;
 
 pub use camera::{Intrinsics, Pose};
