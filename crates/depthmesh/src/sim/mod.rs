@@ -4,4 +4,6 @@
 //! Rendering the depth a sensor sees is the rasterizer's job; this module
 //! only says what there is to see, from where, and how it is corrupted.
 
+pub mod scene;
 pub mod shapes;
+pub use scene::{HelixParams, Scene, SceneObject, SceneOptions};
