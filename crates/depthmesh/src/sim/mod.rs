@@ -4,6 +4,9 @@
 //! Rendering the depth a sensor sees is the rasterizer's job; this module
 //! only says what there is to see, from where, and how it is corrupted.
 
+pub mod path;
 pub mod scene;
 pub mod shapes;
+
+pub use path::PathSpec;
 pub use scene::{HelixParams, Scene, SceneObject, SceneOptions};
