@@ -4,9 +4,11 @@
 //! Rendering the depth a sensor sees is the rasterizer's job; this module
 //! only says what there is to see, from where, and how it is corrupted.
 
+pub mod noise;
 pub mod path;
 pub mod scene;
 pub mod shapes;
 
+pub use noise::NoiseModel;
 pub use path::PathSpec;
 pub use scene::{HelixParams, Scene, SceneObject, SceneOptions};
