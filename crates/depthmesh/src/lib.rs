@@ -12,6 +12,8 @@ pub mod map;
 pub mod mesh;
 pub mod palette;
 pub mod raster;
+pub mod sim;
+pub mod trajectory;
 
 pub use camera::{Intrinsics, Pose};
 pub use error::{Error, Result};
