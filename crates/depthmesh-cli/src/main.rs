@@ -14,6 +14,9 @@ use std::process::ExitCode;
 #[derive(Parser, Debug)]
 #[command(name = "depthmesh", version, about)]
 struct Cli {
+    /// Hide progress bars.
+    #[arg(long, global = true)]
+    quiet: bool,
     #[command(subcommand)]
     command: Command,
 }
@@ -29,8 +32,8 @@ enum Command {
 fn main() -> ExitCode {
     let cli = Cli::parse();
     let result = match cli.command {
-        Command::Simulate(args) => simulate::run(&args).map(|_| ()),
-        Command::Demo(args) => demo::run(&args),
+        Command::Simulate(args) => simulate::run(&args, cli.quiet).map(|_| ()),
+        Command::Demo(args) => demo::run(&args, cli.quiet),
     };
     match result {
         Ok(()) => ExitCode::SUCCESS,

@@ -59,8 +59,15 @@ impl RunOutput {
     }
 
     /// Writes `mesh.ply`, `trajectory.txt`, `stats.csv` and `summary.json`.
-    /// `summary` holds the back-end specific keys; the common ones are added here.
-    pub fn finish(&self, map: &str, mesh: &Mesh, map_bytes: usize, mut summary: Map<String, Value>) -> Result<()> {
+    /// `summary` holds the back-end specific keys; the common ones are added
+    /// here, and the whole summary is returned.
+    pub fn finish(
+        &self,
+        map: &str,
+        mesh: &Mesh,
+        map_bytes: usize,
+        mut summary: Map<String, Value>,
+    ) -> Result<Map<String, Value>> {
         write_ply(&self.path("mesh.ply"), mesh, PlyFormat::BinaryLittleEndian)?;
         let tum = format_tum(&self.trajectory);
         write_atomic(&self.path("trajectory.txt"), |w| w.write_all(tum.as_bytes()))?;
@@ -74,9 +81,9 @@ impl RunOutput {
         summary.insert("triangles".into(), mesh.triangle_count().into());
         summary.insert("vertices".into(), mesh.vertex_count().into());
         summary.insert("map_bytes".into(), map_bytes.into());
-        let text = serde_json::to_string_pretty(&Value::Object(summary))?;
+        let text = serde_json::to_string_pretty(&summary)?;
         write_atomic(&self.path("summary.json"), |w| writeln!(w, "{text}"))?;
-        Ok(())
+        Ok(summary)
     }
 
     fn write_stats(&self) -> Result<()> {

@@ -1,0 +1,191 @@
+//! `depthmesh simulate`: a simulated sensor follows a path through a scene
+//! file and a map back-end builds the mesh.
+
+use crate::output::{FrameStats, RunOutput};
+use crate::progress;
+use crate::views::Dashboard;
+use anyhow::{bail, Context, Result};
+use clap::{Args, ValueEnum};
+use depthmesh::eval::fraction_within;
+use depthmesh::mabdi::classify::Threshold;
+use depthmesh::mabdi::{MabdiConfig, MabdiMapper, NaiveMapper};
+use depthmesh::map::Mapper;
+use depthmesh::mesh::ply::{write_ply, PlyFormat};
+use depthmesh::sim::{NoiseModel, PathSpec, Scene, SceneOptions, SimulatedSensor};
+use serde_json::{json, Map, Value};
+use std::path::{Path, PathBuf};
+use std::time::Instant;
+
+/// The map back-ends `simulate` can drive.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, ValueEnum)]
+pub enum MapKind {
+    /// MABDI mesh addition: only surface the map does not predict is added.
+    Mabdi,
+    /// The thesis's traditional method: every frame's whole surface is added.
+    Naive,
+}
+
+/// Flags of `depthmesh simulate`.
+#[derive(Args, Debug, Clone)]
+pub struct SimulateArgs {
+    /// Scene file (TOML; see scenes/example.toml).
+    #[arg(long)]
+    pub scene: PathBuf,
+    /// Map back-end.
+    #[arg(long, value_enum, default_value_t = MapKind::Mabdi)]
+    pub map: MapKind,
+    /// Number of sensor poses along the path.
+    #[arg(long, default_value_t = 30)]
+    pub iterations: u32,
+    /// Depth noise: none, zbuffer:SIGMA (thesis eq. 4.2, e.g. zbuffer:0.002) or kinect.
+    #[arg(long, default_value = "none")]
+    pub noise: NoiseModel,
+    /// Let objects appear and disappear as the scene's `dynamic` entries say.
+    #[arg(long)]
+    pub dynamic: bool,
+    /// Seed of the noise.
+    #[arg(long, default_value_t = 0)]
+    pub seed: u64,
+    /// Mesh file for `${bunny}` in scene files (e.g. the Stanford bunny PLY).
+    #[arg(long)]
+    pub bunny: Option<PathBuf>,
+    /// Sensor path: helix (the thesis's), line, or tum:FILE.
+    #[arg(long, default_value = "helix")]
+    pub path: PathSpec,
+    /// Novelty threshold in metres (default: the thesis's 0.01 in normalised depth, ≈ 0.01·z² m).
+    #[arg(long)]
+    pub threshold: Option<f32>,
+    /// Keep triangles the sensor sees through (the thesis's behaviour) instead of removing them.
+    #[arg(long)]
+    pub keep_removed: bool,
+    /// Write a dashboard image per iteration and the element plot.
+    #[arg(long)]
+    pub dashboard: bool,
+    /// Output folder.
+    #[arg(long)]
+    pub out: PathBuf,
+}
+
+/// What a finished run reports to the caller (the demo's table).
+#[derive(Debug, Clone)]
+pub struct RunSummary {
+    /// The summary.json content.
+    pub summary: Map<String, Value>,
+}
+
+/// Loads the scene named by the flags (or an embedded one via `text`).
+pub fn load_scene(path: &Path, text: Option<&str>, args: &SimulateArgs) -> Result<Scene> {
+    let mut options = SceneOptions {
+        dynamic: args.dynamic,
+        ..SceneOptions::default()
+    };
+    if let Some(bunny) = &args.bunny {
+        options.variables.insert("bunny".into(), bunny.clone());
+    }
+    Ok(match text {
+        Some(text) => Scene::parse(text, path, &options)?,
+        None => Scene::load(path, &options)?,
+    })
+}
+
+/// Runs `simulate` with the scene file of the flags.
+pub fn run(args: &SimulateArgs, quiet: bool) -> Result<RunSummary> {
+    let scene = load_scene(&args.scene, None, args)?;
+    run_scene(args, &scene, quiet)
+}
+
+/// Runs `simulate` on an already loaded scene.
+pub fn run_scene(args: &SimulateArgs, scene: &Scene, quiet: bool) -> Result<RunSummary> {
+    if args.iterations == 0 {
+        bail!("--iterations must be at least 1");
+    }
+    if let Some(t) = args.threshold {
+        if !(t.is_finite() && t > 0.0) {
+            bail!("--threshold must be a positive number of metres, got {t}");
+        }
+    }
+    let poses = args.path.build(scene, args.iterations)?;
+    let mut sensor = SimulatedSensor::kinect(args.noise, args.seed);
+    let mut config = MabdiConfig::thesis(sensor.intrinsics, sensor.near, sensor.far);
+    if let Some(t) = args.threshold {
+        config.novelty = Threshold::Metres(t);
+    }
+    if args.keep_removed {
+        config.removal = None;
+    }
+    let mut mapper: Box<dyn Mapper> = match args.map {
+        MapKind::Mabdi => Box::new(MabdiMapper::new(config)?),
+        MapKind::Naive => Box::new(NaiveMapper::new(config)?),
+    };
+    let mut out = RunOutput::create(&args.out)?;
+    let mut dashboard = args
+        .dashboard
+        .then(|| Dashboard::new(scene, &poses, sensor.intrinsics, &out.path("dashboard")))
+        .transpose()?;
+
+    let bar = progress::bar(poses.len() as u64, scene.name.as_str(), quiet);
+    let mut sensor_ms = Vec::with_capacity(poses.len());
+    for (i, pose) in poses.iter().enumerate() {
+        let iteration = i as u32 + 1;
+        let start = Instant::now();
+        let frame = sensor.capture(scene, iteration, pose);
+        let captured = start.elapsed().as_secs_f64() * 1e3;
+        let report = mapper
+            .integrate(&frame, pose)
+            .with_context(|| format!("iteration {iteration}"))?;
+        let ms = start.elapsed().as_secs_f64() * 1e3;
+        let stats = mapper.stats();
+        sensor_ms.push(captured);
+        out.frames.push(FrameStats {
+            frame: iteration as usize,
+            ms,
+            report,
+            total_elements: stats.elements,
+            total_vertices: stats.vertices,
+        });
+        out.trajectory.push((iteration as f64, *pose));
+        if let Some(d) = dashboard.as_mut() {
+            d.draw(iteration, &frame, mapper.as_mut(), &out.frames)?;
+        }
+        bar.set_message(format!("{} elements", stats.elements));
+        bar.inc(1);
+    }
+    bar.finish_and_clear();
+
+    let last = args.iterations;
+    let truth = scene.world_mesh(last).0;
+    write_ply(&out.path("scene.ply"), &truth, PlyFormat::BinaryLittleEndian)?;
+    if let Some(d) = dashboard.as_ref() {
+        d.element_plot(&out.frames, mapper.name(), &out.path("elements.png"))?;
+    }
+    let stats = mapper.stats();
+    let mesh = mapper.mesh();
+    // ~1M samples at most keeps the check to about a second on any map.
+    let spacing = ((mesh.area() / 1.0e6).sqrt() as f32).max(0.002);
+    let within = fraction_within(mesh, &truth, 0.005, spacing);
+    let column = |name: &str| -> f64 {
+        out.frames
+            .iter()
+            .map(|f| f.report.extra.iter().find(|(k, _)| *k == name).map_or(0.0, |(_, v)| *v))
+            .sum()
+    };
+    let naive = column("naive_elements");
+    let mut summary = Map::new();
+    summary.insert("scene".into(), scene.name.clone().into());
+    summary.insert("iterations".into(), args.iterations.into());
+    summary.insert("noise".into(), args.noise.to_string().into());
+    summary.insert("seed".into(), args.seed.into());
+    summary.insert("dynamic".into(), args.dynamic.into());
+    summary.insert("path".into(), args.path.to_string().into());
+    summary.insert("naive_elements".into(), json!(naive as u64));
+    summary.insert(
+        "elements_vs_naive".into(),
+        json!(if naive > 0.0 { stats.elements as f64 / naive } else { 0.0 }),
+    );
+    summary.insert("removed_elements".into(), json!(out.frames.iter().map(|f| f.report.removed_elements).sum::<usize>()));
+    summary.insert("novel_pixels".into(), json!(column("novel_pixels") as u64));
+    summary.insert("sensor_seconds".into(), json!(sensor_ms.iter().sum::<f64>() / 1e3));
+    summary.insert("surface_within_5mm".into(), json!(within));
+    let summary = out.finish(mapper.name(), mesh, stats.bytes, summary)?;
+    Ok(RunSummary { summary })
+}
