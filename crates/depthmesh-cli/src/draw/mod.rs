@@ -5,4 +5,5 @@
 
 
 pub mod canvas;
+pub mod colormap;
 pub mod text;
