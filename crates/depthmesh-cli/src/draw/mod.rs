@@ -3,8 +3,8 @@
 //! Kept dependency-light on purpose: the figures are simple and a plotting or
 //! imaging stack would dwarf the rest of the binary.
 
-
 pub mod canvas;
 pub mod colormap;
+pub mod dashboard;
 pub mod plot;
 pub mod text;
