@@ -3,7 +3,7 @@
 
 use crate::output::{FrameStats, RunOutput};
 use crate::progress;
-use crate::views::Dashboard;
+use crate::views::{Dashboard, MapperView};
 use anyhow::{bail, Context, Result};
 use clap::{Args, ValueEnum};
 use depthmesh::eval::fraction_within;
@@ -66,6 +66,40 @@ pub struct SimulateArgs {
     pub out: PathBuf,
 }
 
+/// The back-ends `simulate` drives, kept concrete so the dashboard can show
+/// their internals (E, the pixel classes).
+enum SimMap {
+    Mabdi(MabdiMapper),
+    Naive(NaiveMapper),
+}
+
+impl SimMap {
+    fn mapper(&mut self) -> &mut dyn Mapper {
+        match self {
+            SimMap::Mabdi(m) => m,
+            SimMap::Naive(m) => m,
+        }
+    }
+
+    /// What the dashboard shows of the last frame, which added `new_triangles`.
+    fn view(&self, new_triangles: usize) -> MapperView<'_> {
+        match self {
+            SimMap::Mabdi(m) => MapperView {
+                mesh: m.mesh_ref(),
+                new_triangles,
+                expected: Some(m.expected()),
+                classes: m.classes(),
+            },
+            SimMap::Naive(m) => MapperView {
+                mesh: m.mesh_ref(),
+                new_triangles,
+                expected: None,
+                classes: m.classes(),
+            },
+        }
+    }
+}
+
 /// What a finished run reports to the caller (the demo's table).
 #[derive(Debug, Clone)]
 pub struct RunSummary {
@@ -113,9 +147,9 @@ pub fn run_scene(args: &SimulateArgs, scene: &Scene, quiet: bool) -> Result<RunS
     if args.keep_removed {
         config.removal = None;
     }
-    let mut mapper: Box<dyn Mapper> = match args.map {
-        MapKind::Mabdi => Box::new(MabdiMapper::new(config)?),
-        MapKind::Naive => Box::new(NaiveMapper::new(config)?),
+    let mut map = match args.map {
+        MapKind::Mabdi => SimMap::Mabdi(MabdiMapper::new(config)?),
+        MapKind::Naive => SimMap::Naive(NaiveMapper::new(config)?),
     };
     let mut out = RunOutput::create(&args.out)?;
     let mut dashboard = args
@@ -130,11 +164,13 @@ pub fn run_scene(args: &SimulateArgs, scene: &Scene, quiet: bool) -> Result<RunS
         let start = Instant::now();
         let frame = sensor.capture(scene, iteration, pose);
         let captured = start.elapsed().as_secs_f64() * 1e3;
-        let report = mapper
+        let report = map
+            .mapper()
             .integrate(&frame, pose)
             .with_context(|| format!("iteration {iteration}"))?;
         let ms = start.elapsed().as_secs_f64() * 1e3;
-        let stats = mapper.stats();
+        let stats = map.mapper().stats();
+        let new_triangles = report.new_elements;
         sensor_ms.push(captured);
         out.frames.push(FrameStats {
             frame: iteration as usize,
@@ -145,7 +181,7 @@ pub fn run_scene(args: &SimulateArgs, scene: &Scene, quiet: bool) -> Result<RunS
         });
         out.trajectory.push((iteration as f64, *pose));
         if let Some(d) = dashboard.as_mut() {
-            d.draw(iteration, &frame, mapper.as_mut(), &out.frames)?;
+            d.draw(iteration, scene, &frame.depth, &map.view(new_triangles), &out.frames)?;
         }
         bar.set_message(format!("{} elements", stats.elements));
         bar.inc(1);
@@ -156,9 +192,11 @@ pub fn run_scene(args: &SimulateArgs, scene: &Scene, quiet: bool) -> Result<RunS
     let truth = scene.world_mesh(last).0;
     write_ply(&out.path("scene.ply"), &truth, PlyFormat::BinaryLittleEndian)?;
     if let Some(d) = dashboard.as_ref() {
-        d.element_plot(&out.frames, mapper.name(), &out.path("elements.png"))?;
+        d.element_plot(&out.frames, &out.path("elements.png"))?;
     }
+    let mapper = map.mapper();
     let stats = mapper.stats();
+    let name = mapper.name();
     let mesh = mapper.mesh();
     // ~1M samples at most keeps the check to about a second on any map.
     let spacing = ((mesh.area() / 1.0e6).sqrt() as f32).max(0.002);
@@ -186,6 +224,6 @@ pub fn run_scene(args: &SimulateArgs, scene: &Scene, quiet: bool) -> Result<RunS
     summary.insert("novel_pixels".into(), json!(column("novel_pixels") as u64));
     summary.insert("sensor_seconds".into(), json!(sensor_ms.iter().sum::<f64>() / 1e3));
     summary.insert("surface_within_5mm".into(), json!(within));
-    let summary = out.finish(mapper.name(), mesh, stats.bytes, summary)?;
+    let summary = out.finish(name, mesh, stats.bytes, summary)?;
     Ok(RunSummary { summary })
 }

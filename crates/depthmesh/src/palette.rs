@@ -1,17 +1,17 @@
 //! Colours that encode map quantities, shared by mesh files and images.
 
-/// A distinct, bright colour for each iteration, so that neighbouring
-/// iterations stand apart when a mesh is coloured by the iteration that added
-/// each part (MABDI's figures). Hues step by the golden angle, starting at yellow.
+/// Hue of iteration 1, a yellow like the first iteration in the thesis figures.
+const FIRST_HUE: f32 = 55.0;
+/// 360° / φ²: consecutive hues land far apart, and no hue repeats however many
+/// iterations there are, unlike a cycled palette.
+const GOLDEN_ANGLE: f32 = 137.507_76;
+
+/// A bright colour for the surface added in `iteration` (1-based), clearly
+/// different from those of the neighbouring iterations, so a mesh coloured by
+/// the iteration that added each part reads like the thesis's figures.
 pub fn iteration_color(iteration: u32) -> [u8; 3] {
-    let hue = (60.0 + 137.507_77 * iteration.saturating_sub(1) as f32) % 360.0;
-    // Alternate the lightness a little so even close hues differ.
-    let value = if iteration.is_multiple_of(2) {
-        0.85
-    } else {
-        1.0
-    };
-    hsv_to_rgb(hue, 0.85, value)
+    let steps = (iteration as f32 - 1.0) * GOLDEN_ANGLE;
+    hsv_to_rgb(FIRST_HUE + steps.rem_euclid(360.0), 0.8, 1.0)
 }
 
 /// HSV (hue in degrees, saturation and value in 0..=1) to 8-bit RGB.
@@ -36,11 +36,16 @@ mod tests {
     use super::*;
 
     #[test]
-    fn consecutive_iterations_differ() {
-        for i in 1..60 {
-            let (a, b) = (iteration_color(i), iteration_color(i + 1));
-            let diff: i32 = (0..3).map(|k| (a[k] as i32 - b[k] as i32).abs()).sum();
-            assert!(diff > 60, "iterations {i} and {} look alike", i + 1);
+    fn iteration_colours_are_bright_and_distinct() {
+        let first = iteration_color(1);
+        assert!(first[0] > 200 && first[1] > 200 && first[2] < 100, "yellow: {first:?}");
+        let colours: Vec<[u8; 3]> = (0..40).map(iteration_color).collect();
+        for c in &colours {
+            assert_eq!(c.iter().max(), Some(&255), "full value: {c:?}");
+        }
+        for pair in colours.windows(2) {
+            let distance: i32 = (0..3).map(|i| (i32::from(pair[0][i]) - i32::from(pair[1][i])).abs()).sum();
+            assert!(distance > 150, "{pair:?}");
         }
         assert_eq!(hsv_to_rgb(0.0, 1.0, 1.0), [255, 0, 0]);
         assert_eq!(hsv_to_rgb(120.0, 1.0, 1.0), [0, 255, 0]);

@@ -72,8 +72,6 @@ pub struct MabdiMapper {
     classes: Vec<PixelClass>,
     mesher: DepthMesher,
     carver: Carver,
-    /// Where the novel surface S of the last frame starts in `mesh.triangles`.
-    last_novel_start: usize,
 }
 
 /// Checks a frame against the configured sensor.
@@ -103,7 +101,6 @@ impl MabdiMapper {
             classes: Vec::new(),
             mesher: DepthMesher::new(),
             carver: Carver::default(),
-            last_novel_start: 0,
         })
     }
 
@@ -117,9 +114,9 @@ impl MabdiMapper {
         &self.classes
     }
 
-    /// The novel surface S added by the last frame (a range of the mesh's triangles).
-    pub fn last_novel_triangles(&self) -> &[[u32; 3]] {
-        &self.mesh.triangles[self.last_novel_start..]
+    /// The global mesh M.
+    pub fn mesh_ref(&self) -> &Mesh {
+        &self.mesh
     }
 
     /// Drops the triangles whose removal votes reached the limit, and the
@@ -183,7 +180,6 @@ impl Mapper for MabdiMapper {
             }
         }
 
-        self.last_novel_start = self.mesh.triangles.len();
         let added = self.mesher.mesh(
             &frame.depth,
             &self.classes,
@@ -267,6 +263,18 @@ impl NaiveMapper {
             mesher: DepthMesher::new(),
             nothing: DepthImage::default(),
         })
+    }
+}
+
+impl NaiveMapper {
+    /// The map's mesh.
+    pub fn mesh_ref(&self) -> &Mesh {
+        &self.mesh
+    }
+
+    /// The pixel classes of the last frame.
+    pub fn classes(&self) -> &[PixelClass] {
+        &self.classes
     }
 }
 
