@@ -3,6 +3,7 @@
 //! The crate holds the algorithms; the `depthmesh` binary holds the command line.
 //! See `ARCHITECTURE.md` at the repository root for where things live.
 
+pub mod atomic;
 pub mod camera;
 pub mod error;
 pub mod eval;

@@ -1,6 +1,8 @@
 //! Triangle meshes and their files.
 
 pub mod io;
+pub mod obj;
+pub mod ply;
 
 use glam::Vec3;
 
