@@ -40,7 +40,8 @@ pub struct RunOutput {
 impl RunOutput {
     /// Prepares `dir` (created if missing).
     pub fn create(dir: &Path) -> Result<Self> {
-        std::fs::create_dir_all(dir).with_context(|| format!("cannot create output folder {}", dir.display()))?;
+        std::fs::create_dir_all(dir)
+            .with_context(|| format!("cannot create output folder {}", dir.display()))?;
         Ok(RunOutput {
             dir: dir.to_path_buf(),
             frames: Vec::new(),
@@ -70,13 +71,23 @@ impl RunOutput {
     ) -> Result<Map<String, Value>> {
         write_ply(&self.path("mesh.ply"), mesh, PlyFormat::BinaryLittleEndian)?;
         let tum = format_tum(&self.trajectory);
-        write_atomic(&self.path("trajectory.txt"), |w| w.write_all(tum.as_bytes()))?;
+        write_atomic(&self.path("trajectory.txt"), |w| {
+            w.write_all(tum.as_bytes())
+        })?;
         self.write_stats()?;
         let seconds = self.seconds();
         let frames = self.frames.len();
         summary.insert("frames".into(), frames.into());
         summary.insert("seconds".into(), seconds.into());
-        summary.insert("fps".into(), if seconds > 0.0 { frames as f64 / seconds } else { 0.0 }.into());
+        summary.insert(
+            "fps".into(),
+            if seconds > 0.0 {
+                frames as f64 / seconds
+            } else {
+                0.0
+            }
+            .into(),
+        );
         summary.insert("map".into(), map.into());
         summary.insert("triangles".into(), mesh.triangle_count().into());
         summary.insert("vertices".into(), mesh.vertex_count().into());
@@ -93,7 +104,10 @@ impl RunOutput {
             .map(|f| f.report.extra.iter().map(|(k, _)| *k).collect())
             .unwrap_or_default();
         write_atomic(&self.path("stats.csv"), |w| {
-            write!(w, "frame,ms,new_elements,removed_elements,total_elements,total_vertices")?;
+            write!(
+                w,
+                "frame,ms,new_elements,removed_elements,total_elements,total_vertices"
+            )?;
             for k in &extra {
                 write!(w, ",{k}")?;
             }
@@ -102,7 +116,12 @@ impl RunOutput {
                 write!(
                     w,
                     "{},{:.3},{},{},{},{}",
-                    f.frame, f.ms, f.report.new_elements, f.report.removed_elements, f.total_elements, f.total_vertices
+                    f.frame,
+                    f.ms,
+                    f.report.new_elements,
+                    f.report.removed_elements,
+                    f.total_elements,
+                    f.total_vertices
                 )?;
                 for (_, v) in &f.report.extra {
                     write!(w, ",{v}")?;

@@ -181,7 +181,13 @@ pub fn run_scene(args: &SimulateArgs, scene: &Scene, quiet: bool) -> Result<RunS
         });
         out.trajectory.push((iteration as f64, *pose));
         if let Some(d) = dashboard.as_mut() {
-            d.draw(iteration, scene, &frame.depth, &map.view(new_triangles), &out.frames)?;
+            d.draw(
+                iteration,
+                scene,
+                &frame.depth,
+                &map.view(new_triangles),
+                &out.frames,
+            )?;
         }
         bar.set_message(format!("{} elements", stats.elements));
         bar.inc(1);
@@ -190,7 +196,11 @@ pub fn run_scene(args: &SimulateArgs, scene: &Scene, quiet: bool) -> Result<RunS
 
     let last = args.iterations;
     let truth = scene.world_mesh(last).0;
-    write_ply(&out.path("scene.ply"), &truth, PlyFormat::BinaryLittleEndian)?;
+    write_ply(
+        &out.path("scene.ply"),
+        &truth,
+        PlyFormat::BinaryLittleEndian,
+    )?;
     if let Some(d) = dashboard.as_ref() {
         d.element_plot(&out.frames, &out.path("elements.png"))?;
     }
@@ -204,7 +214,13 @@ pub fn run_scene(args: &SimulateArgs, scene: &Scene, quiet: bool) -> Result<RunS
     let column = |name: &str| -> f64 {
         out.frames
             .iter()
-            .map(|f| f.report.extra.iter().find(|(k, _)| *k == name).map_or(0.0, |(_, v)| *v))
+            .map(|f| {
+                f.report
+                    .extra
+                    .iter()
+                    .find(|(k, _)| *k == name)
+                    .map_or(0.0, |(_, v)| *v)
+            })
             .sum()
     };
     let naive = column("naive_elements");
@@ -218,11 +234,25 @@ pub fn run_scene(args: &SimulateArgs, scene: &Scene, quiet: bool) -> Result<RunS
     summary.insert("naive_elements".into(), json!(naive as u64));
     summary.insert(
         "elements_vs_naive".into(),
-        json!(if naive > 0.0 { stats.elements as f64 / naive } else { 0.0 }),
+        json!(if naive > 0.0 {
+            stats.elements as f64 / naive
+        } else {
+            0.0
+        }),
     );
-    summary.insert("removed_elements".into(), json!(out.frames.iter().map(|f| f.report.removed_elements).sum::<usize>()));
+    summary.insert(
+        "removed_elements".into(),
+        json!(out
+            .frames
+            .iter()
+            .map(|f| f.report.removed_elements)
+            .sum::<usize>()),
+    );
     summary.insert("novel_pixels".into(), json!(column("novel_pixels") as u64));
-    summary.insert("sensor_seconds".into(), json!(sensor_ms.iter().sum::<f64>() / 1e3));
+    summary.insert(
+        "sensor_seconds".into(),
+        json!(sensor_ms.iter().sum::<f64>() / 1e3),
+    );
     summary.insert("surface_within_5mm".into(), json!(within));
     let summary = out.finish(name, mesh, stats.bytes, summary)?;
     Ok(RunSummary { summary })

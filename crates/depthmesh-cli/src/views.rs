@@ -86,7 +86,11 @@ impl Dashboard {
         map: &MapperView,
         frames: &[FrameStats],
     ) -> Result<()> {
-        if scene.objects.iter().any(|o| o.present_at(iteration) != o.present_at(self.environment_iteration)) {
+        if scene
+            .objects
+            .iter()
+            .any(|o| o.present_at(iteration) != o.present_at(self.environment_iteration))
+        {
             self.environment = scene.world_mesh(iteration).0;
         }
         self.environment_iteration = iteration;
@@ -95,7 +99,14 @@ impl Dashboard {
         let start = map.mesh.triangles.len() - map.new_triangles;
         let novel_view = self.third_person(map.mesh, &map.mesh.triangles[start..], i);
         let (lo, hi) = (0.8, 4.0);
-        let d = depth_colors(&depth.data, depth.width, depth.height, lo, hi, Colormap::Turbo);
+        let d = depth_colors(
+            &depth.data,
+            depth.width,
+            depth.height,
+            lo,
+            hi,
+            Colormap::Turbo,
+        );
         let e = match map.expected {
             Some(e) => depth_colors(&e.data, e.width, e.height, lo, hi, Colormap::Turbo),
             None => Canvas::new(depth.width, depth.height, [0; 3]),
@@ -136,7 +147,14 @@ impl Dashboard {
     /// sensor path and the frustum at pose `i`.
     fn third_person(&mut self, mesh: &Mesh, triangles: &[[u32; 3]], i: usize) -> Canvas {
         let (v, pose) = (self.view, self.view_pose);
-        self.rasterizer.render(&mesh.positions, triangles, &v, &pose, 0.05, &mut self.target);
+        self.rasterizer.render(
+            &mesh.positions,
+            triangles,
+            &v,
+            &pose,
+            0.05,
+            &mut self.target,
+        );
         self.rasterizer.render(
             &self.environment.positions,
             &self.environment.triangles,
@@ -154,30 +172,53 @@ impl Dashboard {
             if t != NO_TRIANGLE {
                 let [a, b, c] = triangles[t as usize];
                 let corners = [a, b, c].map(|k| mesh.positions[k as usize]);
-                let shade = normal_shade((corners[1] - corners[0]).cross(corners[2] - corners[0]), light);
-                let base = mesh.colors.get(a as usize).copied().unwrap_or([200, 200, 200]);
+                let shade = normal_shade(
+                    (corners[1] - corners[0]).cross(corners[2] - corners[0]),
+                    light,
+                );
+                let base = mesh
+                    .colors
+                    .get(a as usize)
+                    .copied()
+                    .unwrap_or([200, 200, 200]);
                 colour = base.map(|x| (x as f32 * shade) as u8);
             }
             let e = self.environment_target.triangle[p];
-            let (dm, de) = (self.target.depth.data[p], self.environment_target.depth.data[p]);
+            let (dm, de) = (
+                self.target.depth.data[p],
+                self.environment_target.depth.data[p],
+            );
             if e != NO_TRIANGLE && (t == NO_TRIANGLE || de < dm - 0.01) {
                 let corners = env.triangles[e as usize].map(|k| env.positions[k as usize]);
-                let shade = normal_shade((corners[1] - corners[0]).cross(corners[2] - corners[0]), light);
+                let shade = normal_shade(
+                    (corners[1] - corners[0]).cross(corners[2] - corners[0]),
+                    light,
+                );
                 for k in 0..3 {
                     let grey = ENVIRONMENT[k] as f32 * shade;
-                    colour[k] = (colour[k] as f32 * (1.0 - ENVIRONMENT_ALPHA) + grey * ENVIRONMENT_ALPHA) as u8;
+                    colour[k] = (colour[k] as f32 * (1.0 - ENVIRONMENT_ALPHA)
+                        + grey * ENVIRONMENT_ALPHA) as u8;
                 }
             }
             *px = colour;
         }
         let to_view = pose.inverse();
         let project = |w: Vec3| v.project(to_view.transform_point(w)).map(|s| (s.x, s.y));
-        let path: Vec<(f32, f32)> = self.poses.iter().filter_map(|p| project(p.translation)).collect();
+        let path: Vec<(f32, f32)> = self
+            .poses
+            .iter()
+            .filter_map(|p| project(p.translation))
+            .collect();
         canvas.draw_polyline(&path, 2.0, PATH_COLOUR);
         let sensor = self.poses[i];
         let s = self.sensor;
-        let corners = [(0.0, 0.0), (s.width as f32 - 1.0, 0.0), (s.width as f32 - 1.0, s.height as f32 - 1.0), (0.0, s.height as f32 - 1.0)]
-            .map(|(u, r)| project(sensor.transform_point(s.back_project(u, r, FRUSTUM_DEPTH))));
+        let corners = [
+            (0.0, 0.0),
+            (s.width as f32 - 1.0, 0.0),
+            (s.width as f32 - 1.0, s.height as f32 - 1.0),
+            (0.0, s.height as f32 - 1.0),
+        ]
+        .map(|(u, r)| project(sensor.transform_point(s.back_project(u, r, FRUSTUM_DEPTH))));
         let apex = project(sensor.translation);
         for k in 0..4 {
             if let (Some(a), Some(b)) = (corners[k], corners[(k + 1) % 4]) {
@@ -194,7 +235,10 @@ impl Dashboard {
 /// The plot of map size by iteration; with `compare`, also the cumulative
 /// count of the thesis's traditional method that meshes every whole frame.
 fn element_plot(frames: &[FrameStats], compare: bool) -> LinePlot {
-    let map: Vec<(f64, f64)> = frames.iter().map(|f| (f.frame as f64, f.total_elements as f64)).collect();
+    let map: Vec<(f64, f64)> = frames
+        .iter()
+        .map(|f| (f.frame as f64, f.total_elements as f64))
+        .collect();
     let mut series = vec![Series {
         name: "MABDI".into(),
         colour: [30, 90, 200],
@@ -206,7 +250,12 @@ fn element_plot(frames: &[FrameStats], compare: bool) -> LinePlot {
         let naive = frames
             .iter()
             .map(|f| {
-                sum += f.report.extra.iter().find(|(k, _)| *k == "naive_elements").map_or(0.0, |(_, v)| *v);
+                sum += f
+                    .report
+                    .extra
+                    .iter()
+                    .find(|(k, _)| *k == "naive_elements")
+                    .map_or(0.0, |(_, v)| *v);
                 (f.frame as f64, sum)
             })
             .collect();
@@ -218,7 +267,11 @@ fn element_plot(frames: &[FrameStats], compare: bool) -> LinePlot {
         });
     }
     LinePlot {
-        title: if compare { "Elements in the global mesh".into() } else { String::new() },
+        title: if compare {
+            "Elements in the global mesh".into()
+        } else {
+            String::new()
+        },
         x_label: "iteration".into(),
         y_label: "number of elements".into(),
         series,

@@ -38,13 +38,18 @@ mod tests {
     #[test]
     fn iteration_colours_are_bright_and_distinct() {
         let first = iteration_color(1);
-        assert!(first[0] > 200 && first[1] > 200 && first[2] < 100, "yellow: {first:?}");
+        assert!(
+            first[0] > 200 && first[1] > 200 && first[2] < 100,
+            "yellow: {first:?}"
+        );
         let colours: Vec<[u8; 3]> = (0..40).map(iteration_color).collect();
         for c in &colours {
             assert_eq!(c.iter().max(), Some(&255), "full value: {c:?}");
         }
         for pair in colours.windows(2) {
-            let distance: i32 = (0..3).map(|i| (i32::from(pair[0][i]) - i32::from(pair[1][i])).abs()).sum();
+            let distance: i32 = (0..3)
+                .map(|i| (i32::from(pair[0][i]) - i32::from(pair[1][i])).abs())
+                .sum();
             assert!(distance > 150, "{pair:?}");
         }
         assert_eq!(hsv_to_rgb(0.0, 1.0, 1.0), [255, 0, 0]);

@@ -1,73 +1,136 @@
-//! Exact point-to-mesh distances up to a search radius, through a uniform grid
-//! of triangle buckets. Evaluation asks "within 5 mm?" of millions of points,
-//! so queries are bounded by a radius rather than searching the whole mesh.
+//! Exact point-to-mesh distances up to a search radius, through a bounding
+//! volume hierarchy over the triangles. A BVH handles meshes of huge
+//! triangles (a 10 m floor slab) and of millions of tiny ones alike, which a
+//! uniform grid does not; the radius bounds the work of a query when
+//! evaluation only asks "within 5 mm?".
 
 use crate::mesh::{Aabb, Mesh};
-use glam::{IVec3, Vec3};
-use std::collections::HashMap;
+use glam::Vec3;
+
+/// Triangles per leaf.
+const LEAF_SIZE: usize = 4;
+
+#[derive(Clone, Copy, Debug)]
+struct Node {
+    bounds: Aabb,
+    /// Leaf: first triangle in `order`; inner: index of the left child (the right one follows it).
+    start: u32,
+    /// Leaf: number of triangles; inner: 0.
+    count: u32,
+}
 
 /// Closest-point queries against a fixed mesh.
 #[derive(Debug)]
 pub struct MeshDistance {
-    cell: f32,
     radius: f32,
     corners: Vec<[Vec3; 3]>,
-    cells: HashMap<IVec3, Vec<u32>>,
+    nodes: Vec<Node>,
+}
+
+fn squared_distance_to_box(b: &Aabb, p: Vec3) -> f32 {
+    let d = (b.min - p).max(p - b.max).max(Vec3::ZERO);
+    d.length_squared()
 }
 
 impl MeshDistance {
-    /// Indexes `mesh` for queries up to `radius` metres (cells of that size).
+    /// Indexes `mesh` for queries up to `radius` metres.
     pub fn new(mesh: &Mesh, radius: f32) -> Self {
-        let cell = radius.max(1e-4);
-        let corners: Vec<[Vec3; 3]> = (0..mesh.triangle_count())
+        let mut corners: Vec<[Vec3; 3]> = (0..mesh.triangle_count())
             .map(|t| mesh.corners(t))
             .collect();
-        let mut cells: HashMap<IVec3, Vec<u32>> = HashMap::new();
-        for (t, c) in corners.iter().enumerate() {
-            let mut b = Aabb::EMPTY;
-            c.iter().for_each(|&p| b.include(p));
-            let lo = (b.min / cell).floor().as_ivec3();
-            let hi = (b.max / cell).floor().as_ivec3();
-            for z in lo.z..=hi.z {
-                for y in lo.y..=hi.y {
-                    for x in lo.x..=hi.x {
-                        cells.entry(IVec3::new(x, y, z)).or_default().push(t as u32);
-                    }
-                }
-            }
+        let mut nodes = Vec::with_capacity(2 * corners.len() / LEAF_SIZE + 1);
+        if !corners.is_empty() {
+            nodes.push(Node {
+                bounds: Aabb::EMPTY,
+                start: 0,
+                count: corners.len() as u32,
+            });
+            build(&mut nodes, 0, &mut corners);
         }
         MeshDistance {
-            cell,
             radius,
             corners,
-            cells,
+            nodes,
         }
     }
 
     /// Distance from `p` to the mesh, or `None` when it is farther than the radius.
     pub fn distance(&self, p: Vec3) -> Option<f32> {
-        let c = (p / self.cell).floor().as_ivec3();
         let mut best = self.radius * self.radius;
         let mut found = false;
-        for z in -1..=1 {
-            for y in -1..=1 {
-                for x in -1..=1 {
-                    let Some(list) = self.cells.get(&(c + IVec3::new(x, y, z))) else {
-                        continue;
-                    };
-                    for &t in list {
-                        let [a, b, cc] = self.corners[t as usize];
-                        let d = (closest_point_on_triangle(p, a, b, cc) - p).length_squared();
-                        if d <= best {
-                            best = d;
-                            found = true;
-                        }
+        let mut stack = [0u32; 64];
+        let mut top = usize::from(!self.nodes.is_empty());
+        while top > 0 {
+            top -= 1;
+            let node = &self.nodes[stack[top] as usize];
+            if squared_distance_to_box(&node.bounds, p) > best {
+                continue;
+            }
+            if node.count > 0 {
+                for [a, b, c] in
+                    &self.corners[node.start as usize..(node.start + node.count) as usize]
+                {
+                    let d = (closest_point_on_triangle(p, *a, *b, *c) - p).length_squared();
+                    if d <= best {
+                        best = d;
+                        found = true;
                     }
                 }
+            } else {
+                stack[top] = node.start;
+                stack[top + 1] = node.start + 1;
+                top += 2;
             }
         }
         found.then(|| best.sqrt())
     }
+}
+
+/// Splits node `index` (holding `tris`, whose bounds it gets) at the median of
+/// its longest axis until leaves are small. Depth stays near log2(n), far
+/// below the query stack's 64.
+fn build(nodes: &mut Vec<Node>, index: usize, tris: &mut [[Vec3; 3]]) {
+    let mut bounds = Aabb::EMPTY;
+    let mut centres = Aabb::EMPTY;
+    for t in tris.iter() {
+        t.iter().for_each(|&p| bounds.include(p));
+        centres.include((t[0] + t[1] + t[2]) / 3.0);
+    }
+    nodes[index].bounds = bounds;
+    if tris.len() <= LEAF_SIZE {
+        return;
+    }
+    let e = centres.extent();
+    let axis = if e.x >= e.y && e.x >= e.z {
+        0
+    } else if e.y >= e.z {
+        1
+    } else {
+        2
+    };
+    let mid = tris.len() / 2;
+    tris.select_nth_unstable_by(mid, |a, b| {
+        let ca = a[0][axis] + a[1][axis] + a[2][axis];
+        let cb = b[0][axis] + b[1][axis] + b[2][axis];
+        ca.total_cmp(&cb)
+    });
+    let start = nodes[index].start;
+    let left = nodes.len();
+    nodes.push(Node {
+        bounds: Aabb::EMPTY,
+        start,
+        count: mid as u32,
+    });
+    nodes.push(Node {
+        bounds: Aabb::EMPTY,
+        start: start + mid as u32,
+        count: (tris.len() - mid) as u32,
+    });
+    nodes[index].start = left as u32;
+    nodes[index].count = 0;
+    let (lo, hi) = tris.split_at_mut(mid);
+    build(nodes, left, lo);
+    build(nodes, left + 1, hi);
 }
 
 /// The point of triangle `abc` closest to `p` (Ericson, Real-Time Collision Detection §5.1.5).

@@ -5,6 +5,7 @@ pub mod distance;
 use crate::mesh::Mesh;
 use distance::MeshDistance;
 use glam::Vec3;
+use rayon::prelude::*;
 
 /// Points spread over a mesh's surface, about `spacing` metres apart, in a
 /// deterministic pattern (each triangle gets a count proportional to its area,

@@ -31,12 +31,19 @@ pub struct SimulatedSensor {
 impl SimulatedSensor {
     /// The MABDI thesis's sensor: 640×480, 60° vertical field of view, 0.8–4.0 m.
     pub fn kinect(noise: NoiseModel, seed: u64) -> Self {
-        Self::new(Intrinsics::kinect(), 0.8, 4.0, noise, seed).expect("the built-in sensor is valid")
+        Self::new(Intrinsics::kinect(), 0.8, 4.0, noise, seed)
+            .expect("the built-in sensor is valid")
     }
 
     /// A sensor with the given model and range; rejects an empty image or a
     /// range that is not `0 < near < far`.
-    pub fn new(intrinsics: Intrinsics, near: f32, far: f32, noise: NoiseModel, seed: u64) -> Result<Self> {
+    pub fn new(
+        intrinsics: Intrinsics,
+        near: f32,
+        far: f32,
+        noise: NoiseModel,
+        seed: u64,
+    ) -> Result<Self> {
         intrinsics.validate()?;
         if !(near > 0.0 && far > near && far.is_finite()) {
             return Err(Error::parameter(
@@ -58,16 +65,28 @@ impl SimulatedSensor {
 
     /// The frame the sensor takes at `iteration` (1-based) from `pose`.
     pub fn capture(&mut self, scene: &Scene, iteration: u32, pose: &Pose) -> Frame {
-        let present: Vec<bool> = scene.objects.iter().map(|o| o.present_at(iteration)).collect();
+        let present: Vec<bool> = scene
+            .objects
+            .iter()
+            .map(|o| o.present_at(iteration))
+            .collect();
         if self.world.as_ref().is_none_or(|(p, _)| *p != present) {
             self.world = Some((present, scene.world_mesh(iteration).0));
         }
         let world = &self.world.as_ref().expect("set above").1;
         // A tiny near plane: a surface closer than the minimum range still
         // hides what is behind it, it just gives no measurement.
-        self.rasterizer.render(&world.positions, &world.triangles, &self.intrinsics, pose, 0.01, &mut self.target);
+        self.rasterizer.render(
+            &world.positions,
+            &world.triangles,
+            &self.intrinsics,
+            pose,
+            0.01,
+            &mut self.target,
+        );
         let mut depth: DepthImage = self.target.depth.clone();
-        self.noise.apply(&mut depth, self.near, self.far, self.seed, iteration);
+        self.noise
+            .apply(&mut depth, self.near, self.far, self.seed, iteration);
         depth.clamp_range(self.near, self.far);
         Frame {
             index: iteration as usize,
