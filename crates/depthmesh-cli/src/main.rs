@@ -1,5 +1,6 @@
 //! `depthmesh`: depth images in, compact triangle-mesh maps out.
 
+mod bench;
 mod demo;
 mod draw;
 mod output;
@@ -27,6 +28,9 @@ enum Command {
     Simulate(simulate::SimulateArgs),
     /// Run the thesis's experiments on the built-in scenes and summarise them.
     Demo(demo::DemoArgs),
+    /// Measure speed on generated data (figures as JSON).
+    #[command(subcommand)]
+    Bench(bench::BenchCommand),
 }
 
 fn main() -> ExitCode {
@@ -34,6 +38,7 @@ fn main() -> ExitCode {
     let result = match cli.command {
         Command::Simulate(args) => simulate::run(&args, cli.quiet).map(|_| ()),
         Command::Demo(args) => demo::run(&args, cli.quiet),
+        Command::Bench(command) => bench::run(&command),
     };
     match result {
         Ok(()) => ExitCode::SUCCESS,

@@ -21,6 +21,7 @@
 
 use crate::camera::{Intrinsics, Pose};
 use crate::image::DepthImage;
+use crate::mesh::Aabb;
 use glam::Vec3;
 use rayon::prelude::*;
 
@@ -30,7 +31,9 @@ pub const NO_TRIANGLE: u32 = u32::MAX;
 /// Rows per band of the parallel raster pass.
 const BAND_ROWS: usize = 16;
 /// Triangles per chunk of the parallel binning pass.
-const CHUNK_TRIANGLES: usize = 1 << 14;
+const CHUNK_TRIANGLES: usize = 1 << 13;
+/// Vertices per block of the vertex pass.
+const VERTEX_BLOCK: usize = 1 << 12;
 /// Sub-pixel precision of snapped vertices (bits).
 const SUBPIXEL_BITS: u32 = 8;
 const SUBPIXEL: f32 = (1 << SUBPIXEL_BITS) as f32;
@@ -66,8 +69,15 @@ impl RenderTarget {
 pub struct Rasterizer {
     /// Camera-space vertex positions of the current render.
     camera_points: Vec<Vec3>,
+    /// Per vertex: pixel coordinates and inverse depth, or a non-positive
+    /// inverse depth when the vertex is nearer than the near plane.
+    screen_points: Vec<[f32; 3]>,
     /// Triangle ids per (chunk, band), flattened chunk-major.
     bins: Vec<Vec<u32>>,
+    /// Per chunk of triangles: whether it may be in view.
+    chunk_visible: Vec<bool>,
+    /// Per block of vertices: whether a chunk in view uses it.
+    vertex_block_needed: Vec<bool>,
 }
 
 /// View parameters shared by the passes of one render.
@@ -83,6 +93,39 @@ struct View {
 }
 
 impl View {
+    /// Whether any part of a world-space box may be in the view frustum
+    /// (`world_to_camera` maps world to camera coordinates); conservative.
+    fn may_see(&self, world_to_camera: &Pose, b: &Aabb) -> bool {
+        if b.is_empty() {
+            return false;
+        }
+        let c = world_to_camera.transform_point(b.center());
+        let h = 0.5 * b.extent();
+        let r = world_to_camera.rotation;
+        // Half extents of the box along the camera axes.
+        let e = Vec3::new(
+            r.row(0).abs().dot(h),
+            r.row(1).abs().dot(h),
+            r.row(2).abs().dot(h),
+        );
+        if c.z + e.z < self.near {
+            return false;
+        }
+        // Side planes through the optical centre at the image borders (half
+        // a pixel out): inside where n·p ≥ 0.
+        let left = (-0.5 - self.cx) / self.fx;
+        let right = (self.width as f32 - 0.5 - self.cx) / self.fx;
+        let top = (-0.5 - self.cy) / self.fy;
+        let bottom = (self.height as f32 - 0.5 - self.cy) / self.fy;
+        let planes = [
+            Vec3::new(1.0, 0.0, -left),
+            Vec3::new(-1.0, 0.0, right),
+            Vec3::new(0.0, 1.0, -top),
+            Vec3::new(0.0, -1.0, bottom),
+        ];
+        planes.iter().all(|n| n.dot(c) + n.abs().dot(e) >= 0.0)
+    }
+
     #[inline]
     fn project(&self, p: Vec3) -> (f32, f32) {
         let inv = 1.0 / p.z;
@@ -103,10 +146,11 @@ impl Rasterizer {
         Self::default()
     }
 
-    /// Camera-space positions of the vertices of the last render, so that
-    /// per-triangle passes after a render need not transform them again.
-    pub fn camera_points(&self) -> &[Vec3] {
-        &self.camera_points
+    /// Per vertex of the last render: pixel coordinates `u, v` and inverse
+    /// depth `1/z` (non-positive for vertices nearer than the near plane), so
+    /// that per-triangle passes after a render need not project them again.
+    pub fn screen_points(&self) -> &[[f32; 3]] {
+        &self.screen_points
     }
 
     /// Renders the triangles seen from `pose` into `target` (resized to the
@@ -122,6 +166,38 @@ impl Rasterizer {
         near: f32,
         target: &mut RenderTarget,
     ) {
+        let geometry = Geometry {
+            positions,
+            triangles,
+            chunks: None,
+        };
+        self.render_visiting(geometry, intrinsics, pose, near, target, None, |_, _| false);
+    }
+
+    /// [`Rasterizer::render`], skipping the chunks of triangles whose boxes
+    /// (when `geometry` has them) lie outside the view, and calling `visit`
+    /// on every triangle of the chunks in view with its projected corners
+    /// (see [`Rasterizer::screen_points`]) and its byte of `state`, while
+    /// those corners are at hand. Returns whether any visit returned true.
+    #[allow(clippy::too_many_arguments)]
+    pub fn render_visiting<F>(
+        &mut self,
+        geometry: Geometry,
+        intrinsics: &Intrinsics,
+        pose: &Pose,
+        near: f32,
+        target: &mut RenderTarget,
+        state: Option<&mut [u8]>,
+        visit: F,
+    ) -> bool
+    where
+        F: Fn(&mut u8, &[[f32; 3]; 3]) -> bool + Sync,
+    {
+        let Geometry {
+            positions,
+            triangles,
+            chunks: bounds,
+        } = geometry;
         let view = View {
             width: intrinsics.width as usize,
             height: intrinsics.height as usize,
@@ -133,41 +209,99 @@ impl Rasterizer {
         };
         target.reset(intrinsics.width, intrinsics.height);
         if view.width == 0 || view.height == 0 {
-            return;
+            return false;
         }
         let world_to_camera = pose.inverse();
+        let chunks = triangles.len().div_ceil(CHUNK_TRIANGLES);
+
+        // Which chunks can be seen, and so which blocks of vertices are needed.
+        self.chunk_visible.clear();
+        self.vertex_block_needed.clear();
+        let vertex_blocks = positions.len().div_ceil(VERTEX_BLOCK);
+        match bounds.filter(|b| b.boxes.len() == chunks && b.counted == triangles.len()) {
+            Some(b) => {
+                self.vertex_block_needed.resize(vertex_blocks, false);
+                for (bx, range) in b.boxes.iter().zip(&b.vertex_ranges) {
+                    let visible = view.may_see(&world_to_camera, bx);
+                    self.chunk_visible.push(visible);
+                    if visible {
+                        let (lo, hi) = (
+                            range.0 as usize / VERTEX_BLOCK,
+                            range.1 as usize / VERTEX_BLOCK,
+                        );
+                        self.vertex_block_needed[lo..=hi.min(vertex_blocks - 1)].fill(true);
+                    }
+                }
+            }
+            None => {
+                self.chunk_visible.resize(chunks, true);
+                self.vertex_block_needed.resize(vertex_blocks, true);
+            }
+        }
+
         self.camera_points.resize(positions.len(), Vec3::ZERO);
+        self.screen_points.resize(positions.len(), [0.0; 3]);
         self.camera_points
-            .par_chunks_mut(1 << 14)
-            .zip(positions.par_chunks(1 << 14))
-            .for_each(|(out, inp)| {
-                for (o, &p) in out.iter_mut().zip(inp) {
-                    *o = world_to_camera.transform_point(p);
+            .par_chunks_mut(VERTEX_BLOCK)
+            .zip(self.screen_points.par_chunks_mut(VERTEX_BLOCK))
+            .zip(positions.par_chunks(VERTEX_BLOCK))
+            .zip(self.vertex_block_needed.par_iter())
+            .filter(|(_, needed)| **needed)
+            .for_each(|(((cam, screen), inp), _)| {
+                for ((c, s), &p) in cam.iter_mut().zip(screen.iter_mut()).zip(inp) {
+                    *c = world_to_camera.transform_point(p);
+                    *s = if c.z >= view.near {
+                        let (u, v) = view.project(*c);
+                        [u, v, 1.0 / c.z]
+                    } else {
+                        [0.0, 0.0, -1.0]
+                    };
                 }
             });
 
         let bands = view.height.div_ceil(BAND_ROWS);
-        let chunks = triangles.len().div_ceil(CHUNK_TRIANGLES);
         if self.bins.len() < chunks * bands {
             self.bins.resize_with(chunks * bands, Vec::new);
         }
+        let mut states: Vec<Option<&mut [u8]>> = match state {
+            Some(s) => s.chunks_mut(CHUNK_TRIANGLES).map(Some).collect(),
+            None => (0..chunks).map(|_| None).collect(),
+        };
+        states.resize_with(chunks, || None);
         let camera_points = &self.camera_points;
-        self.bins[..chunks * bands]
+        let screen_points = &self.screen_points;
+        let chunk_visible = &self.chunk_visible;
+        let any = self.bins[..chunks * bands]
             .par_chunks_mut(bands)
             .zip(triangles.par_chunks(CHUNK_TRIANGLES))
+            .zip(states.par_iter_mut())
             .enumerate()
-            .for_each(|(chunk, (bins, tris))| {
+            .map(|(chunk, ((bins, tris), state))| {
                 bins.iter_mut().for_each(Vec::clear);
+                if !chunk_visible[chunk] {
+                    return false;
+                }
                 let first = (chunk * CHUNK_TRIANGLES) as u32;
+                let mut any = false;
                 for (i, t) in tris.iter().enumerate() {
-                    let corners = t.map(|v| camera_points[v as usize]);
-                    if let Some((r0, r1)) = row_span(&view, &corners) {
+                    let screen = t.map(|v| screen_points[v as usize]);
+                    if let Some(state) = state.as_deref_mut() {
+                        any |= visit(&mut state[i], &screen);
+                    }
+                    let span = if screen[0][2] > 0.0 && screen[1][2] > 0.0 && screen[2][2] > 0.0 {
+                        pixel_span(&view, &screen)
+                    } else {
+                        clipped_row_span(&view, &t.map(|v| camera_points[v as usize]))
+                    };
+                    if let Some((r0, r1)) = span {
                         for bin in &mut bins[r0 / BAND_ROWS..=r1 / BAND_ROWS] {
                             bin.push(first + i as u32);
                         }
                     }
                 }
-            });
+                any
+            })
+            .reduce(|| false, |a, b| a || b);
 
         let bins = &self.bins[..chunks * bands];
         let rows = BAND_ROWS * view.width;
@@ -181,8 +315,21 @@ impl Rasterizer {
                 let row1 = (row0 + BAND_ROWS).min(view.height) - 1;
                 for chunk in 0..chunks {
                     for &t in &bins[chunk * bands + band] {
-                        let corners = triangles[t as usize].map(|v| camera_points[v as usize]);
-                        draw_triangle(&view, &corners, t, row0, row1, zbuf, ids);
+                        let tri = triangles[t as usize];
+                        let screen = tri.map(|v| screen_points[v as usize]);
+                        if screen[0][2] > 0.0 && screen[1][2] > 0.0 && screen[2][2] > 0.0 {
+                            draw_projected(&view, &screen, t, row0, row1, zbuf, ids);
+                        } else {
+                            draw_clipped(
+                                &view,
+                                &tri.map(|v| camera_points[v as usize]),
+                                t,
+                                row0,
+                                row1,
+                                zbuf,
+                                ids,
+                            );
+                        }
                     }
                 }
             });
@@ -193,42 +340,115 @@ impl Rasterizer {
             .par_iter_mut()
             .zip(target.inverse_depth.par_iter())
             .for_each(|(d, &w)| *d = if w > 0.0 { 1.0 / w } else { 0.0 });
+        any
     }
 }
 
-/// The image rows (inclusive) a triangle may cover, or `None` when it cannot
-/// cover any pixel centre. A conservative float test: exact coverage is decided later.
-#[inline]
-fn row_span(view: &View, c: &[Vec3; 3]) -> Option<(usize, usize)> {
-    let (w, h) = (view.width as f32, view.height as f32);
-    let (vmin, vmax, umin, umax);
-    if c[0].z >= view.near && c[1].z >= view.near && c[2].z >= view.near {
-        let a = view.project(c[0]);
-        let b = view.project(c[1]);
-        let d = view.project(c[2]);
-        umin = a.0.min(b.0).min(d.0);
-        umax = a.0.max(b.0).max(d.0);
-        vmin = a.1.min(b.1).min(d.1);
-        vmax = a.1.max(b.1).max(d.1);
-    } else {
-        let poly = clip_near(view, c)?;
-        let (mut lo, mut hi) = ([f32::INFINITY; 2], [f32::NEG_INFINITY; 2]);
-        for p in &poly.p[..poly.n] {
-            lo = [lo[0].min(p[0]), lo[1].min(p[1])];
-            hi = [hi[0].max(p[0]), hi[1].max(p[1])];
+/// What to render: vertex positions, triangles and optionally the boxes of
+/// the triangle chunks for culling.
+#[derive(Clone, Copy, Debug)]
+pub struct Geometry<'a> {
+    /// Vertex positions in world coordinates.
+    pub positions: &'a [Vec3],
+    /// Triangles as vertex index triples.
+    pub triangles: &'a [[u32; 3]],
+    /// Boxes of the triangle chunks; ignored unless up to date with `triangles`.
+    pub chunks: Option<&'a ChunkBounds>,
+}
+
+/// Bounding boxes of consecutive runs of triangles, kept up to date by the
+/// owner of a growing mesh so that a render skips the runs outside the view
+/// (a global mesh grows by surfaces seen from one pose at a time, so its runs
+/// are compact in space).
+#[derive(Clone, Debug, Default)]
+pub struct ChunkBounds {
+    boxes: Vec<Aabb>,
+    /// Smallest and largest vertex index used by each chunk.
+    vertex_ranges: Vec<(u32, u32)>,
+    /// Triangles accounted for.
+    counted: usize,
+}
+
+impl ChunkBounds {
+    /// Accounts for triangles appended since the last call (only those are read).
+    pub fn extend(&mut self, positions: &[Vec3], triangles: &[[u32; 3]]) {
+        if self.counted > triangles.len() {
+            self.clear();
         }
-        (umin, vmin, umax, vmax) = (lo[0], lo[1], hi[0], hi[1]);
+        for (t, tri) in triangles.iter().enumerate().skip(self.counted) {
+            let chunk = t / CHUNK_TRIANGLES;
+            if chunk == self.boxes.len() {
+                self.boxes.push(Aabb::EMPTY);
+                self.vertex_ranges.push((u32::MAX, 0));
+            }
+            for &v in tri {
+                self.boxes[chunk].include(positions[v as usize]);
+                let r = &mut self.vertex_ranges[chunk];
+                *r = (r.0.min(v), r.1.max(v));
+            }
+        }
+        self.counted = triangles.len();
     }
-    // A small margin keeps this test conservative against the snapping below.
-    let (u0, u1) = (
-        (umin - 0.01).ceil().max(0.0),
-        (umax + 0.01).floor().min(w - 1.0),
-    );
-    let (v0, v1) = (
-        (vmin - 0.01).ceil().max(0.0),
-        (vmax + 0.01).floor().min(h - 1.0),
-    );
+
+    /// Forgets all boxes, for when triangles were removed or reordered.
+    pub fn clear(&mut self) {
+        self.boxes.clear();
+        self.vertex_ranges.clear();
+        self.counted = 0;
+    }
+}
+
+/// `floor(x)` within 1/512 for pixel coordinates, fast: the offset makes the
+/// value positive so truncation is flooring, with no libm call and no
+/// int-to-float round trip (hot loops run on baseline x86-64). Callers keep
+/// a margin larger than the error.
+#[inline]
+fn floor_i(x: f32) -> i64 {
+    const OFFSET: f32 = 32768.0;
+    ((x.clamp(-30000.0, 30000.0) + OFFSET) as i32 - OFFSET as i32) as i64
+}
+
+/// `ceil(x)`, to the same precision as [`floor_i`].
+#[inline]
+fn ceil_i(x: f32) -> i64 {
+    -floor_i(-x)
+}
+
+/// Rows (inclusive) of the pixel centres inside the screen-space box
+/// `lo..hi`, or `None` when it holds none. A conservative float test with a
+/// small margin against the snapping: exact coverage is decided later.
+#[inline]
+fn span_of(view: &View, lo: [f32; 2], hi: [f32; 2]) -> Option<(usize, usize)> {
+    let u0 = ceil_i(lo[0] - 0.01).max(0);
+    let u1 = floor_i(hi[0] + 0.01).min(view.width as i64 - 1);
+    let v0 = ceil_i(lo[1] - 0.01).max(0);
+    let v1 = floor_i(hi[1] + 0.01).min(view.height as i64 - 1);
     (u0 <= u1 && v0 <= v1).then_some((v0 as usize, v1 as usize))
+}
+
+/// [`span_of`] a triangle whose vertices are all in front of the near plane.
+#[inline]
+fn pixel_span(view: &View, s: &[[f32; 3]; 3]) -> Option<(usize, usize)> {
+    let lo = [
+        s[0][0].min(s[1][0]).min(s[2][0]),
+        s[0][1].min(s[1][1]).min(s[2][1]),
+    ];
+    let hi = [
+        s[0][0].max(s[1][0]).max(s[2][0]),
+        s[0][1].max(s[1][1]).max(s[2][1]),
+    ];
+    span_of(view, lo, hi)
+}
+
+/// [`span_of`] a triangle that crosses the near plane, after clipping it.
+fn clipped_row_span(view: &View, c: &[Vec3; 3]) -> Option<(usize, usize)> {
+    let poly = clip_near(view, c)?;
+    let (mut lo, mut hi) = ([f32::INFINITY; 2], [f32::NEG_INFINITY; 2]);
+    for p in &poly.p[..poly.n] {
+        lo = [lo[0].min(p[0]), lo[1].min(p[1])];
+        hi = [hi[0].max(p[0]), hi[1].max(p[1])];
+    }
+    span_of(view, lo, hi)
 }
 
 /// Clips a camera-space triangle to `z >= near` and projects it. The cut point
@@ -307,9 +527,56 @@ fn clip_guard(view: &View, poly: &Polygon) -> Polygon {
     cur
 }
 
-/// Rasterizes one triangle into the rows `row0..=row1` of the band buffers.
+/// Rasterizes a triangle whose vertices are all in front of the near plane
+/// (pixel coordinates and inverse depths given) into rows `row0..=row1`.
 #[inline]
-fn draw_triangle(
+fn draw_projected(
+    view: &View,
+    s: &[[f32; 3]; 3],
+    id: u32,
+    row0: usize,
+    row1: usize,
+    zbuf: &mut [f32],
+    ids: &mut [u32],
+) {
+    // Inverse depth is affine in pixel coordinates: fit its plane to the
+    // corners, lazily, since most small triangles cover no pixel centre.
+    let plane = || {
+        let (du1, dv1, dw1) = (s[1][0] - s[0][0], s[1][1] - s[0][1], s[1][2] - s[0][2]);
+        let (du2, dv2, dw2) = (s[2][0] - s[0][0], s[2][1] - s[0][1], s[2][2] - s[0][2]);
+        let area = du1 * dv2 - du2 * dv1;
+        let (a, b) = if area != 0.0 {
+            (
+                (dw1 * dv2 - dw2 * dv1) / area,
+                (du1 * dw2 - du2 * dw1) / area,
+            )
+        } else {
+            (0.0, 0.0)
+        };
+        [a, b, s[0][2] - a * s[0][0] - b * s[0][1]]
+    };
+    if s.iter()
+        .any(|p| p[0].abs() > GUARD_BAND * 2.0 || p[1].abs() > GUARD_BAND * 2.0)
+    {
+        let mut poly = Polygon {
+            n: 3,
+            p: [[0.0; 2]; 8],
+        };
+        for (dst, p) in poly.p.iter_mut().zip(s) {
+            *dst = [p[0], p[1]];
+        }
+        poly = clip_guard(view, &poly);
+        if poly.n >= 3 {
+            fill_polygon(view, &poly, plane(), id, row0, row1, zbuf, ids);
+        }
+        return;
+    }
+    let q = s.map(|p| snap(&[p[0], p[1]]));
+    fill_triangle(view, q, plane, id, row0, row1, zbuf, ids);
+}
+
+/// Rasterizes a triangle that crosses the near plane (camera-space corners).
+fn draw_clipped(
     view: &View,
     c: &[Vec3; 3],
     id: u32,
@@ -318,36 +585,23 @@ fn draw_triangle(
     zbuf: &mut [f32],
     ids: &mut [u32],
 ) {
-    // Plane of the triangle in camera space, n·X = d, gives 1/z = (n·ray(u, v)) / d.
+    // The clipped corners' depths are all `near`, so the plane comes from the
+    // camera-space triangle: n·X = d gives 1/z = (n·ray(u, v)) / d.
     let n = (c[1] - c[0]).cross(c[2] - c[0]);
     let d = n.dot(c[0]);
-    if d.abs() <= f32::MIN_POSITIVE * 1e6 || !d.is_finite() {
+    if d == 0.0 || !d.is_finite() {
         return; // seen edge-on (or degenerate): covers no area
     }
     let a = n.x / (view.fx * d);
     let b = n.y / (view.fy * d);
     let k = (n.z - n.x * view.cx / view.fx - n.y * view.cy / view.fy) / d;
-
-    let mut poly = if c.iter().all(|p| p.z >= view.near) {
-        let mut poly = Polygon {
-            n: 3,
-            p: [[0.0; 2]; 8],
-        };
-        for (dst, &p) in poly.p.iter_mut().zip(c) {
-            let s = view.project(p);
-            *dst = [s.0, s.1];
-        }
-        poly
-    } else {
-        match clip_near(view, c) {
-            Some(p) => p,
-            None => return,
-        }
+    let Some(mut poly) = clip_near(view, c) else {
+        return;
     };
-    let reach = poly.p[..poly.n]
+    if poly.p[..poly.n]
         .iter()
-        .any(|p| p[0].abs() > GUARD_BAND * 2.0 || p[1].abs() > GUARD_BAND * 2.0);
-    if reach {
+        .any(|p| p[0].abs() > GUARD_BAND * 2.0 || p[1].abs() > GUARD_BAND * 2.0)
+    {
         poly = clip_guard(view, &poly);
         if poly.n < 3 {
             return;
@@ -356,7 +610,9 @@ fn draw_triangle(
     fill_polygon(view, &poly, [a, b, k], id, row0, row1, zbuf, ids);
 }
 
-/// Fills a convex polygon with the inverse-depth plane `w = a·u + b·v + k`.
+/// Fills a convex polygon with the inverse-depth plane `w = a·u + b·v + k`,
+/// as a fan of triangles. Snapping happens once per vertex, so the fan's
+/// inner edges are shared exactly and the tie rule covers them once.
 #[allow(clippy::too_many_arguments)]
 #[inline]
 fn fill_polygon(
@@ -369,19 +625,52 @@ fn fill_polygon(
     zbuf: &mut [f32],
     ids: &mut [u32],
 ) {
-    let n = poly.n;
-    let mut q = [[0i64; 2]; 8];
-    let (mut x0, mut y0, mut x1, mut y1) = (i64::MAX, i64::MAX, i64::MIN, i64::MIN);
-    for (s, p) in q.iter_mut().zip(&poly.p[..n]) {
-        *s = [
-            (p[0] * SUBPIXEL).round() as i64,
-            (p[1] * SUBPIXEL).round() as i64,
-        ];
-        x0 = x0.min(s[0]);
-        x1 = x1.max(s[0]);
-        y0 = y0.min(s[1]);
-        y1 = y1.max(s[1]);
+    let first = snap(&poly.p[0]);
+    let mut prev = snap(&poly.p[1]);
+    for p in &poly.p[2..poly.n] {
+        let next = snap(p);
+        fill_triangle(
+            view,
+            [first, prev, next],
+            || plane,
+            id,
+            row0,
+            row1,
+            zbuf,
+            ids,
+        );
+        prev = next;
     }
+}
+
+/// A vertex snapped to fixed point (about 1/256 pixel). Any deterministic
+/// rounding keeps coverage exact, since shared vertices snap alike; this one
+/// is fast and holds over the guard band (|x| ≤ 2^21 / 256 pixels).
+#[inline]
+fn snap(p: &[f32; 2]) -> [i64; 2] {
+    const OFFSET: f32 = (1 << 21) as f32;
+    let one = |x: f32| ((x * SUBPIXEL).clamp(-OFFSET, OFFSET) + OFFSET) as i64 - OFFSET as i64;
+    [one(p[0]), one(p[1])]
+}
+
+/// Fills a triangle with vertices in fixed point (1/256 pixel); `plane`
+/// gives the inverse-depth plane when a pixel turns out to be covered.
+#[allow(clippy::too_many_arguments)]
+#[inline(always)]
+fn fill_triangle(
+    view: &View,
+    mut q: [[i64; 2]; 3],
+    plane: impl Fn() -> [f32; 3],
+    id: u32,
+    row0: usize,
+    row1: usize,
+    zbuf: &mut [f32],
+    ids: &mut [u32],
+) {
+    let x0 = q[0][0].min(q[1][0]).min(q[2][0]);
+    let x1 = q[0][0].max(q[1][0]).max(q[2][0]);
+    let y0 = q[0][1].min(q[1][1]).min(q[2][1]);
+    let y1 = q[0][1].max(q[1][1]).max(q[2][1]);
     let one = 1i64 << SUBPIXEL_BITS;
     // Pixel centres are at integer coordinates: the covered range is
     // ceil(min)..=floor(max) in pixels.
@@ -393,25 +682,22 @@ fn fill_polygon(
         return;
     }
     // Twice the signed area decides the orientation; both faces are drawn, so
-    // a clockwise polygon is walked backwards.
-    let mut area = 0i64;
-    for i in 0..n {
-        let (p, r) = (q[i], q[(i + 1) % n]);
-        area += p[0] * r[1] - p[1] * r[0];
-    }
+    // a clockwise triangle is walked backwards.
+    let area =
+        (q[1][0] - q[0][0]) * (q[2][1] - q[0][1]) - (q[2][0] - q[0][0]) * (q[1][1] - q[0][1]);
     if area == 0 {
         return;
     }
-    // Edge i: E(p) = (r - s) × (p - s), ≥ 0 inside for a positive polygon.
-    let mut e_row = [0i64; 8];
-    let mut step_x = [0i64; 8];
-    let mut step_y = [0i64; 8];
+    if area < 0 {
+        q.swap(1, 2);
+    }
+    // Edge i: E(p) = (r − s) × (p − s), ≥ 0 inside.
+    let mut e_row = [0i64; 3];
+    let mut step_x = [0i64; 3];
+    let mut step_y = [0i64; 3];
     let start = [px0 << SUBPIXEL_BITS, py0 << SUBPIXEL_BITS];
-    for i in 0..n {
-        let (mut s, mut r) = (q[i], q[(i + 1) % n]);
-        if area < 0 {
-            std::mem::swap(&mut s, &mut r);
-        }
+    for i in 0..3 {
+        let (s, r) = (q[i], q[(i + 1) % 3]);
         let (dx, dy) = (r[0] - s[0], r[1] - s[1]);
         // Tie rule: a pixel centre exactly on an edge belongs to one side only.
         // The rule flips when the edge is walked the other way, which is how
@@ -421,13 +707,26 @@ fn fill_polygon(
         step_x[i] = -dy * one;
         step_y[i] = dx * one;
     }
-    let [a, b, k] = plane;
+    if px0 == px1 && py0 == py1 {
+        // The common case of a triangle around one pixel centre: one test.
+        if (e_row[0] | e_row[1] | e_row[2]) >= 0 {
+            let [a, b, k] = plane();
+            let w = a * px0 as f32 + b * py0 as f32 + k;
+            let at = (py0 as usize - row0) * view.width + px0 as usize;
+            if w > zbuf[at] {
+                zbuf[at] = w;
+                ids[at] = id;
+            }
+        }
+        return;
+    }
+    let [a, b, k] = plane();
     for py in py0..=py1 {
         let mut e = e_row;
         let row = (py as usize - row0) * view.width;
         let wy = b * py as f32 + k;
         for px in px0..=px1 {
-            if e[..n].iter().all(|&v| v >= 0) {
+            if (e[0] | e[1] | e[2]) >= 0 {
                 let w = a * px as f32 + wy;
                 let at = row + px as usize;
                 if w > zbuf[at] {
@@ -435,13 +734,13 @@ fn fill_polygon(
                     ids[at] = id;
                 }
             }
-            for i in 0..n {
-                e[i] += step_x[i];
-            }
+            e[0] += step_x[0];
+            e[1] += step_x[1];
+            e[2] += step_x[2];
         }
-        for i in 0..n {
-            e_row[i] += step_y[i];
-        }
+        e_row[0] += step_y[0];
+        e_row[1] += step_y[1];
+        e_row[2] += step_y[2];
     }
 }
 

@@ -44,7 +44,7 @@ pub fn fraction_within(mesh: &Mesh, reference: &Mesh, tolerance: f32, spacing: f
         return 0.0;
     }
     let near = points
-        .iter()
+        .par_iter()
         .filter(|&&p| index.distance(p).is_some())
         .count();
     near as f64 / points.len() as f64

@@ -16,6 +16,9 @@ pub fn full_frame_triangles(width: u32, height: u32) -> usize {
     2 * (width.saturating_sub(1) as usize) * (height.saturating_sub(1) as usize)
 }
 
+/// Side of the square pixel tiles the mesher walks in turn.
+const TILE: usize = 64;
+
 /// Meshes depth images; holds a per-pixel vertex table reused across frames.
 #[derive(Debug, Default)]
 pub struct DepthMesher {
@@ -76,26 +79,33 @@ impl DepthMesher {
         self.vertex_of_pixel.clear();
         self.vertex_of_pixel.resize(w * h, NO_VERTEX);
         let before = triangles.len();
-        for r in 0..h - 1 {
-            for c in 0..w - 1 {
-                for t in block_triangles(r * w + c, w) {
-                    if !t.iter().all(|&p| keep(classes[p])) {
-                        continue;
-                    }
-                    let tri = t.map(|p| {
-                        let v = &mut self.vertex_of_pixel[p];
-                        if *v == NO_VERTEX {
-                            *v = positions.len() as u32;
-                            let (u, row) = ((p % w) as f32, (p / w) as f32);
-                            positions.push(pose.transform_point(intrinsics.back_project(
-                                u,
-                                row,
-                                depth.data[p],
-                            )));
+        // Tile by tile rather than row by row: each run of triangles (and
+        // their vertices) then covers a compact patch of surface, which lets
+        // renders of the global mesh cull whole runs outside the view.
+        let (rows, columns) = (h - 1, w - 1);
+        for tile_row in (0..rows).step_by(TILE) {
+            for tile_column in (0..columns).step_by(TILE) {
+                for r in tile_row..(tile_row + TILE).min(rows) {
+                    for c in tile_column..(tile_column + TILE).min(columns) {
+                        for t in block_triangles(r * w + c, w) {
+                            if !t.iter().all(|&p| keep(classes[p])) {
+                                continue;
+                            }
+                            let tri =
+                                t.map(|p| {
+                                    let v = &mut self.vertex_of_pixel[p];
+                                    if *v == NO_VERTEX {
+                                        *v = positions.len() as u32;
+                                        let (u, row) = ((p % w) as f32, (p / w) as f32);
+                                        positions.push(pose.transform_point(
+                                            intrinsics.back_project(u, row, depth.data[p]),
+                                        ));
+                                    }
+                                    *v
+                                });
+                            triangles.push(tri);
                         }
-                        *v
-                    });
-                    triangles.push(tri);
+                    }
                 }
             }
         }

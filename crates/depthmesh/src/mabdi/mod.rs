@@ -18,7 +18,7 @@ use crate::image::{DepthImage, Frame};
 use crate::map::{IntegrateReport, MapStats, Mapper};
 use crate::mesh::Mesh;
 use crate::palette::iteration_color;
-use crate::raster::{Rasterizer, RenderTarget};
+use crate::raster::{ChunkBounds, Geometry, Rasterizer, RenderTarget};
 use classify::{classify, PixelClass, Threshold};
 use mesher::DepthMesher;
 use removal::Carver;
@@ -72,6 +72,8 @@ pub struct MabdiMapper {
     classes: Vec<PixelClass>,
     mesher: DepthMesher,
     carver: Carver,
+    /// Boxes of M's triangle chunks, so E skips what is out of view.
+    chunks: ChunkBounds,
 }
 
 /// Checks a frame against the configured sensor.
@@ -91,16 +93,25 @@ fn check_frame(frame: &Frame, intrinsics: &Intrinsics) -> Result<()> {
 impl MabdiMapper {
     /// An empty map.
     pub fn new(config: MabdiConfig) -> Result<Self> {
+        Self::with_mesh(config, Mesh::default())
+    }
+
+    /// A map that starts from an existing global mesh (e.g. a saved map).
+    pub fn with_mesh(config: MabdiConfig, mesh: Mesh) -> Result<Self> {
         config.intrinsics.validate()?;
+        mesh.check().map_err(|m| Error::parameter("mesh", m))?;
+        let mut chunks = ChunkBounds::default();
+        chunks.extend(&mesh.positions, &mesh.triangles);
         Ok(MabdiMapper {
             config,
-            mesh: Mesh::default(),
+            mesh,
             iteration: 0,
             rasterizer: Rasterizer::new(),
             expected: RenderTarget::default(),
             classes: Vec::new(),
             mesher: DepthMesher::new(),
             carver: Carver::default(),
+            chunks,
         })
     }
 
@@ -129,8 +140,11 @@ impl MabdiMapper {
             index += 1;
             votes[index - 1] < frames
         });
-        self.carver.votes.retain(|&v| v < frames);
+        self.carver.retain(|v| v < frames);
         self.mesh.remove_unreferenced_vertices();
+        self.chunks.clear();
+        self.chunks
+            .extend(&self.mesh.positions, &self.mesh.triangles);
         before - self.mesh.triangles.len()
     }
 }
@@ -144,16 +158,53 @@ impl Mapper for MabdiMapper {
         let k = self.config.intrinsics;
         check_frame(frame, &k)?;
         self.iteration += 1;
+        let clock = std::time::Instant::now();
+        let mut lap = {
+            let mut last = clock.elapsed();
+            move || {
+                let now = clock.elapsed();
+                let ms = (now - last).as_secs_f64() * 1e3;
+                last = now;
+                ms
+            }
+        };
         // E is rendered with a tiny near plane: surface of M closer than the
-        // sensor's minimum range still hides what is behind it.
-        self.rasterizer.render(
-            &self.mesh.positions,
-            &self.mesh.triangles,
-            &k,
-            pose,
-            0.01,
-            &mut self.expected,
-        );
+        // sensor's minimum range still hides what is behind it. The removal
+        // evidence is gathered in the same pass over M's triangles.
+        let geometry = Geometry {
+            positions: &self.mesh.positions,
+            triangles: &self.mesh.triangles,
+            chunks: Some(&self.chunks),
+        };
+        let to_remove = match self.config.removal {
+            Some(removal) => {
+                let (votes, evidence) = self.carver.prepare(
+                    &frame.depth,
+                    geometry.triangles.len(),
+                    removal.threshold,
+                    removal.frames,
+                );
+                self.rasterizer.render_visiting(
+                    geometry,
+                    &k,
+                    pose,
+                    0.01,
+                    &mut self.expected,
+                    Some(votes),
+                    |v, s| evidence.judge(v, s),
+                )
+            }
+            None => self.rasterizer.render_visiting(
+                geometry,
+                &k,
+                pose,
+                0.01,
+                &mut self.expected,
+                None,
+                |_, _| false,
+            ),
+        };
+        let render_ms = lap();
         let novel_pixels = classify(
             &frame.depth,
             &self.expected.depth,
@@ -164,22 +215,12 @@ impl Mapper for MabdiMapper {
         let naive = DepthMesher::count(&self.classes, k.width, |c| {
             c != PixelClass::Invalid && c != PixelClass::Boundary
         });
-
-        let mut removed = 0;
-        if let Some(removal) = self.config.removal {
-            let any = self.carver.observe(
-                self.rasterizer.camera_points(),
-                &self.mesh.triangles,
-                &frame.depth,
-                &k,
-                removal.threshold,
-                removal.frames,
-            );
-            if any {
-                removed = self.remove_contradicted(removal.frames);
-            }
-        }
-
+        let classify_ms = lap();
+        let removed = match self.config.removal {
+            Some(removal) if to_remove => self.remove_contradicted(removal.frames),
+            _ => 0,
+        };
+        let removal_ms = lap();
         let added = self.mesher.mesh(
             &frame.depth,
             &self.classes,
@@ -192,12 +233,19 @@ impl Mapper for MabdiMapper {
         self.mesh
             .colors
             .resize(self.mesh.positions.len(), iteration_color(self.iteration));
+        self.chunks
+            .extend(&self.mesh.positions, &self.mesh.triangles);
+        let mesh_ms = lap();
         Ok(IntegrateReport {
             new_elements: added,
             removed_elements: removed,
             extra: vec![
                 ("novel_pixels", novel_pixels as f64),
                 ("naive_elements", naive as f64),
+                ("render_ms", render_ms),
+                ("classify_ms", classify_ms),
+                ("removal_ms", removal_ms),
+                ("mesh_ms", mesh_ms),
             ],
         })
     }

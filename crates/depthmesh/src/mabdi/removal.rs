@@ -21,10 +21,8 @@
 //! contradiction needs a ~5σ error at all nine pixels, so noise does not erode
 //! unchanged surfaces.
 
-use crate::camera::Intrinsics;
 use crate::image::DepthImage;
 use crate::mabdi::classify::Threshold;
-use glam::Vec3;
 use rayon::prelude::*;
 
 /// Free-space evidence counters, one per triangle of the global mesh.
@@ -32,74 +30,100 @@ use rayon::prelude::*;
 pub struct Carver {
     /// Contradictions without a confirmation in between, per triangle.
     pub votes: Vec<u8>,
-    /// Neighbourhood minimum of the current depth image (0 = not usable).
-    min_depth: Vec<f32>,
+    /// Per pixel: the depth and its neighbourhood minimum (0 = not usable),
+    /// side by side so a lookup touches one cache line.
+    depths: Vec<[f32; 2]>,
+}
+
+/// The evidence one depth image gives about triangles, ready to be asked
+/// triangle by triangle (from the render of E, which projects them anyway).
+#[derive(Clone, Copy, Debug)]
+pub struct Evidence<'a> {
+    width: usize,
+    height: usize,
+    depths: &'a [[f32; 2]],
+    threshold: Threshold,
+    frames_to_remove: u8,
 }
 
 impl Carver {
-    /// Updates the counters of all triangles from one depth image and returns
-    /// whether any triangle reached `frames_to_remove`. `camera_points` are the
-    /// mesh vertices in the camera frame of `depth`.
-    pub fn observe(
-        &mut self,
-        camera_points: &[Vec3],
-        triangles: &[[u32; 3]],
-        depth: &DepthImage,
-        intrinsics: &Intrinsics,
+    /// Prepares the evidence of `depth` for a mesh of `triangles` triangles;
+    /// returns the per-triangle counters and the evidence to update them with.
+    pub fn prepare<'a>(
+        &'a mut self,
+        depth: &'a DepthImage,
+        triangles: usize,
         threshold: Threshold,
         frames_to_remove: u8,
-    ) -> bool {
-        self.votes.resize(triangles.len(), 0);
+    ) -> (&'a mut [u8], Evidence<'a>) {
+        self.votes.resize(triangles, 0);
         let (w, h) = (depth.width as usize, depth.height as usize);
-        self.min_depth.clear();
-        self.min_depth.resize(w * h, 0.0);
-        if w < 3 || h < 3 {
-            return false;
-        }
-        self.min_depth
-            .par_chunks_mut(w)
-            .enumerate()
-            .skip(1)
-            .take(h - 2)
-            .for_each(|(r, row)| {
-                for (c, out) in row.iter_mut().enumerate().take(w - 1).skip(1) {
-                    let (mut m, mut valid) = (f32::INFINITY, true);
-                    for rr in r - 1..=r + 1 {
-                        for d in &depth.data[rr * w + c - 1..=rr * w + c + 1] {
-                            valid &= *d > 0.0;
-                            m = m.min(*d);
+        self.depths.clear();
+        self.depths.resize(w * h, [0.0; 2]);
+        if w >= 3 && h >= 3 {
+            self.depths
+                .par_chunks_mut(w)
+                .enumerate()
+                .for_each(|(r, row)| {
+                    for (c, out) in row.iter_mut().enumerate() {
+                        out[0] = depth.data[r * w + c];
+                        if r == 0 || c == 0 || r == h - 1 || c == w - 1 {
+                            continue;
                         }
+                        let (mut m, mut valid) = (f32::INFINITY, true);
+                        for rr in r - 1..=r + 1 {
+                            for d in &depth.data[rr * w + c - 1..=rr * w + c + 1] {
+                                valid &= *d > 0.0;
+                                m = m.min(*d);
+                            }
+                        }
+                        out[1] = if valid { m } else { 0.0 };
                     }
-                    *out = if valid { m } else { 0.0 };
-                }
-            });
-        let min_depth = &self.min_depth;
-        self.votes
-            .par_iter_mut()
-            .zip(triangles.par_iter())
-            .map(|(vote, t)| {
-                let c = (camera_points[t[0] as usize]
-                    + camera_points[t[1] as usize]
-                    + camera_points[t[2] as usize])
-                    / 3.0;
-                if c.z <= 0.0 {
-                    return false;
-                }
-                let u = (intrinsics.fx * c.x / c.z + intrinsics.cx).round();
-                let v = (intrinsics.fy * c.y / c.z + intrinsics.cy).round();
-                if !(u >= 0.0 && v >= 0.0 && (u as usize) < w && (v as usize) < h) {
-                    return false;
-                }
-                let at = v as usize * w + u as usize;
-                let (d, beyond) = (depth.data[at], min_depth[at]);
-                let tol = threshold.at(c.z);
-                if beyond > 0.0 && c.z < beyond - tol {
-                    *vote = vote.saturating_add(1);
-                } else if d > 0.0 && (d - c.z).abs() <= tol {
-                    *vote = 0;
-                }
-                *vote >= frames_to_remove
-            })
-            .reduce(|| false, |a, b| a || b)
+                });
+        }
+        let evidence = Evidence {
+            width: w,
+            height: h,
+            depths: &self.depths,
+            threshold,
+            frames_to_remove,
+        };
+        (&mut self.votes, evidence)
+    }
+
+    /// Drops the counters of removed triangles, keeping those where `keep`.
+    pub fn retain(&mut self, mut keep: impl FnMut(u8) -> bool) {
+        self.votes.retain(|&v| keep(v));
+    }
+}
+
+impl Evidence<'_> {
+    /// Updates the counter of one triangle from its projected corners
+    /// (pixel `u, v` and inverse depth) and says whether it is to be removed.
+    #[inline]
+    pub fn judge(&self, vote: &mut u8, s: &[[f32; 3]; 3]) -> bool {
+        if s[0][2] <= 0.0 || s[1][2] <= 0.0 || s[2][2] <= 0.0 {
+            return *vote >= self.frames_to_remove; // reaches behind the camera
+        }
+        let (w, h) = (self.width, self.height);
+        // The centroid's pixel and depth; triangles are small, so the mean of
+        // the projected corners stands for the projected centroid.
+        let u = (s[0][0] + s[1][0] + s[2][0]) * (1.0 / 3.0) + 0.5;
+        let v = (s[0][1] + s[1][1] + s[2][1]) * (1.0 / 3.0) + 0.5;
+        if !(u >= 0.0 && v >= 0.0 && u < w as f32 && v < h as f32) {
+            return *vote >= self.frames_to_remove;
+        }
+        let [d, beyond] = self.depths[v as usize * w + u as usize];
+        if d <= 0.0 {
+            return *vote >= self.frames_to_remove;
+        }
+        let z = 3.0 / (s[0][2] + s[1][2] + s[2][2]);
+        let tol = self.threshold.at(z);
+        if beyond > 0.0 && z < beyond - tol {
+            *vote = vote.saturating_add(1);
+        } else if d > 0.0 && (d - z).abs() <= tol {
+            *vote = 0;
+        }
+        *vote >= self.frames_to_remove
     }
 }

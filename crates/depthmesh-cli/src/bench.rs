@@ -1,0 +1,152 @@
+//! `depthmesh bench`: speed figures measured on generated data, printed as
+//! JSON so scripts can set them beside a reference implementation's.
+
+use anyhow::{bail, Result};
+use clap::{Args, Subcommand};
+use depthmesh::atomic::write_atomic;
+use depthmesh::mabdi::{MabdiConfig, MabdiMapper, NaiveMapper};
+use depthmesh::map::Mapper;
+use depthmesh::mesh::ply::{write_ply, PlyFormat};
+use depthmesh::sim::{NoiseModel, PathSpec, Scene, SceneOptions, SimulatedSensor};
+use depthmesh::trajectory::format_tum;
+use serde_json::json;
+use std::io::Write;
+use std::path::PathBuf;
+use std::time::Instant;
+
+/// The table scene (built in, like the demo's).
+const TABLE_SCENE: &str = include_str!("../../../scenes/table.toml");
+
+/// Benchmarks.
+#[derive(Subcommand, Debug)]
+pub enum BenchCommand {
+    /// Time full MABDI iterations (render D, render E, classify, mesh, append)
+    /// against a global mesh of at least `--min-triangles`.
+    Mabdi(MabdiBenchArgs),
+}
+
+/// Flags of `depthmesh bench mabdi`.
+#[derive(Args, Debug)]
+pub struct MabdiBenchArgs {
+    /// Smallest global mesh M to time against.
+    #[arg(long, default_value_t = 1_000_000)]
+    pub min_triangles: usize,
+    /// Timed iterations.
+    #[arg(long, default_value_t = 20)]
+    pub iterations: u32,
+    /// Where to write M (`mesh.ply`) and the timed poses (`poses.txt`) for a
+    /// reference renderer.
+    #[arg(long)]
+    pub out: Option<PathBuf>,
+}
+
+/// Runs a benchmark.
+pub fn run(command: &BenchCommand) -> Result<()> {
+    match command {
+        BenchCommand::Mabdi(args) => mabdi(args),
+    }
+}
+
+fn median(mut v: Vec<f64>) -> f64 {
+    v.sort_by(f64::total_cmp);
+    v[v.len() / 2]
+}
+
+fn mabdi(args: &MabdiBenchArgs) -> Result<()> {
+    if args.iterations == 0 {
+        bail!("--iterations must be at least 1");
+    }
+    let scene = Scene::parse(
+        TABLE_SCENE,
+        "scenes/table.toml".as_ref(),
+        &SceneOptions::default(),
+    )?;
+    // M: the thesis's traditional method over the start of one helix, which
+    // piles up overlapping full-frame surfaces until M is big enough.
+    let build_poses = PathSpec::Helix.build(&scene, 30)?;
+    let mut sensor = SimulatedSensor::kinect(NoiseModel::None, 0);
+    let mut config = MabdiConfig::thesis(sensor.intrinsics, sensor.near, sensor.far);
+    if std::env::var("NOREM").is_ok() {
+        config.removal = None;
+    }
+    let mut naive = NaiveMapper::new(config)?;
+    for (i, pose) in build_poses.iter().enumerate() {
+        if naive.stats().elements >= args.min_triangles {
+            break;
+        }
+        naive.integrate(&sensor.capture(&scene, i as u32 + 1, pose), pose)?;
+    }
+    let m = naive.mesh().clone();
+    if m.triangle_count() < args.min_triangles {
+        bail!(
+            "could not build a global mesh of {} triangles",
+            args.min_triangles
+        );
+    }
+    // Timed: a second helix at other angles, so E is never the view M was made from.
+    let poses = PathSpec::Helix.build(&scene, args.iterations + 1)?;
+    let poses = &poses[1..];
+    if let Some(dir) = &args.out {
+        std::fs::create_dir_all(dir)?;
+        write_ply(&dir.join("mesh.ply"), &m, PlyFormat::BinaryLittleEndian)?;
+        let stamped: Vec<_> = poses
+            .iter()
+            .enumerate()
+            .map(|(i, p)| (i as f64, *p))
+            .collect();
+        let tum = format_tum(&stamped);
+        write_atomic(&dir.join("poses.txt"), |w| w.write_all(tum.as_bytes()))?;
+    }
+    let triangles = m.triangle_count();
+    let mut mapper = MabdiMapper::with_mesh(config, m)?;
+    let (mut total, mut sense, mut stages) = (Vec::new(), Vec::new(), vec![Vec::new(); 4]);
+    for (i, pose) in poses.iter().enumerate() {
+        let start = Instant::now();
+        let frame = sensor.capture(&scene, i as u32 + 1, pose);
+        let d = start.elapsed().as_secs_f64() * 1e3;
+        let report = mapper.integrate(&frame, pose)?;
+        total.push(start.elapsed().as_secs_f64() * 1e3);
+        sense.push(d);
+        for (k, name) in ["render_ms", "classify_ms", "removal_ms", "mesh_ms"]
+            .iter()
+            .enumerate()
+        {
+            stages[k].push(
+                report
+                    .extra
+                    .iter()
+                    .find(|(n, _)| n == name)
+                    .map_or(0.0, |(_, v)| *v),
+            );
+        }
+    }
+    let [render_e, classify, removal, mesh]: [f64; 4] = stages
+        .into_iter()
+        .map(median)
+        .collect::<Vec<_>>()
+        .try_into()
+        .expect("four stages");
+    let iteration = median(total);
+    println!(
+        "{}",
+        json!({
+            "bench": "mabdi_iteration",
+            "width": sensor.intrinsics.width,
+            "height": sensor.intrinsics.height,
+            "fx": sensor.intrinsics.fx,
+            "cx": sensor.intrinsics.cx,
+            "cy": sensor.intrinsics.cy,
+            "triangles": triangles,
+            "iterations": args.iterations,
+            "threads": rayon::current_num_threads(),
+            "median_ms": iteration,
+            "hz": 1000.0 / iteration,
+            "render_d_ms": median(sense),
+            "render_e_ms": render_e,
+            "classify_ms": classify,
+            "removal_ms": removal,
+            "mesh_append_ms": mesh,
+        })
+    );
+    Ok(())
+}
