@@ -46,7 +46,12 @@ pub struct RemovalConfig {
 }
 
 impl MabdiConfig {
-    /// The thesis's settings for a sensor with range `[near, far]` metres, with removal on.
+    /// The thesis's settings for a sensor with range `[near, far]` metres,
+    /// with removal on. Removal needs the sensor to see at least
+    /// 0.005 in normalised depth (≈ 0.005·z² m, 2.5σ of the thesis's noise)
+    /// beyond a triangle at all nine pixels around it, in two frames: half the
+    /// novelty threshold, so that objects standing on others lose all but
+    /// their last few centimetres of contact at once.
     pub fn thesis(intrinsics: Intrinsics, near: f32, far: f32) -> Self {
         let t = Threshold::thesis(near, far);
         MabdiConfig {
@@ -54,7 +59,11 @@ impl MabdiConfig {
             novelty: t,
             boundary: t,
             removal: Some(RemovalConfig {
-                threshold: t,
+                threshold: Threshold::Normalised {
+                    value: 0.005,
+                    near,
+                    far,
+                },
                 frames: 2,
             }),
         }
