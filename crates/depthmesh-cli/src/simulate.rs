@@ -69,15 +69,15 @@ pub struct SimulateArgs {
 /// The back-ends `simulate` drives, kept concrete so the dashboard can show
 /// their internals (E, the pixel classes).
 enum SimMap {
-    Mabdi(MabdiMapper),
-    Naive(NaiveMapper),
+    Mabdi(Box<MabdiMapper>),
+    Naive(Box<NaiveMapper>),
 }
 
 impl SimMap {
     fn mapper(&mut self) -> &mut dyn Mapper {
         match self {
-            SimMap::Mabdi(m) => m,
-            SimMap::Naive(m) => m,
+            SimMap::Mabdi(m) => m.as_mut(),
+            SimMap::Naive(m) => m.as_mut(),
         }
     }
 
@@ -148,8 +148,8 @@ pub fn run_scene(args: &SimulateArgs, scene: &Scene, quiet: bool) -> Result<RunS
         config.removal = None;
     }
     let mut map = match args.map {
-        MapKind::Mabdi => SimMap::Mabdi(MabdiMapper::new(config)?),
-        MapKind::Naive => SimMap::Naive(NaiveMapper::new(config)?),
+        MapKind::Mabdi => SimMap::Mabdi(Box::new(MabdiMapper::new(config)?)),
+        MapKind::Naive => SimMap::Naive(Box::new(NaiveMapper::new(config)?)),
     };
     let mut out = RunOutput::create(&args.out)?;
     let mut dashboard = args

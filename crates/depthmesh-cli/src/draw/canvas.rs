@@ -29,17 +29,6 @@ pub struct Canvas {
     pub pixels: Vec<Rgb>,
 }
 
-/// Shape drawn at a data point by [`Canvas::draw_marker`].
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
-pub enum Marker {
-    /// A filled disc.
-    Dot,
-    /// A diagonal cross.
-    Cross,
-    /// A filled axis-aligned square.
-    Square,
-}
-
 impl Canvas {
     /// A canvas of the given size filled with `background`.
     pub fn new(width: u32, height: u32, background: Rgb) -> Self {
@@ -57,6 +46,7 @@ impl Canvas {
     }
 
     /// The colour at `(x, y)`, or `None` outside the canvas.
+    #[cfg(test)]
     pub fn get(&self, x: i32, y: i32) -> Option<Rgb> {
         self.index(x.into(), y.into()).map(|i| self.pixels[i])
     }
@@ -151,25 +141,6 @@ impl Canvas {
         self.paint_coverage(lo, hi, colour, |px, py| {
             radius + 0.5 - (px - centre.0).hypot(py - centre.1)
         });
-    }
-
-    /// Draws `marker` centred on `centre`, about `size` pixels across.
-    pub fn draw_marker(&mut self, centre: (f32, f32), marker: Marker, size: f32, colour: Rgb) {
-        let h = size * 0.5;
-        let (cx, cy) = centre;
-        match marker {
-            Marker::Dot => self.fill_circle(centre, h, colour),
-            Marker::Cross => {
-                let thickness = (size / 4.0).max(1.0);
-                self.draw_line((cx - h, cy - h), (cx + h, cy + h), thickness, colour);
-                self.draw_line((cx - h, cy + h), (cx + h, cy - h), thickness, colour);
-            }
-            Marker::Square => {
-                let side = size.round().max(1.0) as u32;
-                let corner = |c: f32| (c - side as f32 * 0.5 + 0.5).round() as i32;
-                self.fill_rect(corner(cx), corner(cy), side, side, colour);
-            }
-        }
     }
 
     /// Copies `src` with its top-left corner at `(x, y)`.
@@ -317,8 +288,7 @@ mod tests {
         c.draw_line((-1e9, -1e9), (1e9, 1e9), 3.0, RED);
         c.draw_line((f32::NAN, 0.0), (5.0, f32::INFINITY), 1.0, RED);
         c.fill_circle((100.0, 100.0), 5.0, RED);
-        c.draw_marker((-3.0, 4.0), Marker::Square, 9.0, RED);
-        c.draw_marker((9.0, 7.0), Marker::Cross, 9.0, RED);
+        c.fill_circle((-3.0, 4.0), 4.5, RED);
 
         let big = Canvas::new(30, 30, RED);
         c.blit(&big, -10, -10);
@@ -346,10 +316,8 @@ mod tests {
         assert_eq!(c.get(30, 12), Some(RED));
         assert_eq!(c.get(31, 12), Some(RED));
         assert_eq!(c.get(5, 30), Some(WHITE));
-        for (marker, at) in [(Marker::Dot, 5), (Marker::Cross, 15), (Marker::Square, 25)] {
-            c.draw_marker((at as f32, 35.0), marker, 5.0, BLACK);
-            assert_eq!(c.get(at, 35), Some(BLACK), "{marker:?}");
-        }
+        c.fill_circle((5.0, 35.0), 2.5, BLACK);
+        assert_eq!(c.get(5, 35), Some(BLACK));
     }
 
     #[test]

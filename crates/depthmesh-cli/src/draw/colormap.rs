@@ -11,9 +11,6 @@ pub enum Colormap {
     /// lightness rises and falls smoothly, so depth steps read as edges
     /// without the false bands of the classic jet map.
     Turbo,
-    /// Near is white, far is dark grey; it stops short of black so that
-    /// missing measurements stay distinguishable.
-    Grey,
 }
 
 /// Turbo sampled at 17 evenly spaced points; linear interpolation between
@@ -39,9 +36,6 @@ const TURBO: [Rgb; 17] = [
     [122, 4, 3],
 ];
 
-/// Grey level of the farthest depth; see [`Colormap::Grey`].
-const GREY_FAR: f32 = 48.0;
-
 impl Colormap {
     /// The colour for `t` in `[0, 1]` (near to far); values outside are clamped.
     pub fn color(self, t: f32) -> Rgb {
@@ -56,7 +50,6 @@ impl Colormap {
                     (f32::from(a[c]) + (f32::from(b[c]) - f32::from(a[c])) * f).round() as u8
                 })
             }
-            Colormap::Grey => [(255.0 + (GREY_FAR - 255.0) * t).round() as u8; 3],
         }
     }
 }
@@ -117,7 +110,6 @@ pub fn normal_shade(normal: Vec3, light_dir: Vec3) -> f32 {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::draw::canvas::WHITE;
 
     #[test]
     fn depth_endpoints_and_invalid_pixels() {
@@ -129,9 +121,6 @@ mod tests {
         assert_eq!(c.pixels[3], [122, 4, 3]);
         assert_eq!(c.pixels[4], [122, 4, 3], "beyond max clamps");
         assert_eq!(&c.pixels[5..], &[BLACK, BLACK]);
-
-        let g = depth_colors(&depth, 7, 1, 1.0, 5.0, Colormap::Grey);
-        assert_eq!(g.pixels[..4], [BLACK, WHITE, [152; 3], [48; 3]]);
     }
 
     #[test]
@@ -144,7 +133,7 @@ mod tests {
     #[test]
     #[should_panic(expected = "depth image size")]
     fn mismatched_size_is_a_bug() {
-        depth_colors(&[1.0; 3], 2, 2, 0.0, 1.0, Colormap::Grey);
+        depth_colors(&[1.0; 3], 2, 2, 0.0, 1.0, Colormap::Turbo);
     }
 
     #[test]

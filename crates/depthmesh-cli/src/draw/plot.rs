@@ -1,6 +1,6 @@
 //! Line plots of per-iteration statistics, such as the size of the global mesh.
 
-use super::canvas::{Canvas, Marker, Rgb, WHITE};
+use super::canvas::{Canvas, Rgb, WHITE};
 use super::text::{draw_text_aligned, draw_text_vertical, text_height, text_width, Align};
 
 /// Colour of text, axes and tick marks: near-black reads as black but is softer
@@ -167,7 +167,7 @@ impl LinePlot {
             // A lone point has no line to show it.
             if series.markers || pixels.len() == 1 {
                 for &p in &pixels {
-                    canvas.draw_marker(p, Marker::Dot, MARKER_SIZE * thickness, series.colour);
+                    canvas.fill_circle(p, 0.5 * MARKER_SIZE * thickness, series.colour);
                 }
             }
         }
@@ -276,7 +276,7 @@ impl LinePlot {
             canvas.draw_line((x0, mid), (x1, mid), thickness, series.colour);
             if series.markers {
                 let centre = ((x0 + x1) / 2.0, mid);
-                canvas.draw_marker(centre, Marker::Dot, MARKER_SIZE * thickness, series.colour);
+                canvas.fill_circle(centre, 0.5 * MARKER_SIZE * thickness, series.colour);
             }
             let name_x = x + 2 * pad + sample_w;
             draw_text_aligned(canvas, name_x, row_y, &series.name, scale, INK, Align::Left);

@@ -92,11 +92,6 @@ fn draw_run(
     }
 }
 
-/// Draws `text` with its top-left corner at `(x, y)`.
-pub fn draw_text(canvas: &mut Canvas, x: i32, y: i32, text: &str, scale: u32, colour: Rgb) {
-    draw_text_aligned(canvas, x, y, text, scale, colour, Align::Left);
-}
-
 /// Draws `text` with its top edge at `y`, positioned horizontally so that `x`
 /// is its start, middle or end according to `align`.
 pub fn draw_text_aligned(
@@ -174,7 +169,7 @@ mod tests {
     #[test]
     fn drawn_text_spans_its_measured_width() {
         let mut c = Canvas::new(100, 30, WHITE);
-        draw_text(&mut c, 10, 5, "Hello", 2, BLACK);
+        draw_text_aligned(&mut c, 10, 5, "Hello", 2, BLACK, Align::Left);
         let (x0, _, x1, y1) = ink_bounds(&c).unwrap();
         assert_eq!(x0, 10);
         assert_eq!((x1 - x0 + 1) as u32, text_width("Hello", 2));
@@ -207,8 +202,8 @@ mod tests {
     #[test]
     fn text_off_canvas_is_clipped() {
         let mut c = Canvas::new(10, 10, WHITE);
-        draw_text(&mut c, -30, 3, "clipped text", 2, BLACK);
-        draw_text(&mut c, i32::MAX, i32::MIN, "far", 3, BLACK);
+        draw_text_aligned(&mut c, -30, 3, "clipped text", 2, BLACK, Align::Left);
+        draw_text_aligned(&mut c, i32::MAX, i32::MIN, "far", 3, BLACK, Align::Left);
         draw_text_vertical(&mut c, 2, i32::MIN, "far", 1, BLACK);
     }
 }

@@ -1,0 +1,228 @@
+//! The command line end to end: the run contract, and clear errors with no
+//! output for bad input.
+
+use std::path::{Path, PathBuf};
+use std::process::{Command, Output};
+
+fn depthmesh(args: &[&str]) -> Output {
+    Command::new(env!("CARGO_BIN_EXE_depthmesh"))
+        .args(args)
+        .current_dir(env!("CARGO_MANIFEST_DIR"))
+        .output()
+        .expect("the binary runs")
+}
+
+/// A fresh, empty folder for one test.
+fn scratch(name: &str) -> PathBuf {
+    let dir = std::env::temp_dir().join(format!("depthmesh-cli-{}-{name}", std::process::id()));
+    let _ = std::fs::remove_dir_all(&dir);
+    std::fs::create_dir_all(&dir).unwrap();
+    dir
+}
+
+const TABLE: &str = "../../scenes/table.toml";
+
+/// Fails with a message containing every one of `needles`, and no panic.
+fn assert_fails_with(output: &Output, needles: &[&str]) {
+    let stderr = String::from_utf8_lossy(&output.stderr);
+    assert!(
+        !output.status.success(),
+        "expected failure, got success; stderr: {stderr}"
+    );
+    assert!(!stderr.contains("panicked"), "panic: {stderr}");
+    for n in needles {
+        assert!(stderr.contains(n), "stderr lacks {n:?}: {stderr}");
+    }
+}
+
+#[test]
+fn simulate_writes_the_run_contract() {
+    let out = scratch("contract");
+    let o = out.to_str().unwrap();
+    let result = depthmesh(&[
+        "simulate",
+        "--scene",
+        TABLE,
+        "--iterations",
+        "3",
+        "--dashboard",
+        "--quiet",
+        "--out",
+        o,
+    ]);
+    assert!(
+        result.status.success(),
+        "{}",
+        String::from_utf8_lossy(&result.stderr)
+    );
+    for f in [
+        "mesh.ply",
+        "scene.ply",
+        "trajectory.txt",
+        "stats.csv",
+        "summary.json",
+        "elements.png",
+    ] {
+        assert!(out.join(f).is_file(), "{f} missing");
+    }
+    for i in 1..=3 {
+        assert!(out
+            .join(format!("dashboard/iteration-{i:03}.png"))
+            .is_file());
+    }
+    let stats = std::fs::read_to_string(out.join("stats.csv")).unwrap();
+    let mut lines = stats.lines();
+    let header = lines.next().unwrap();
+    assert!(
+        header.starts_with("frame,ms,new_elements,removed_elements,total_elements,total_vertices")
+    );
+    assert!(header.contains("novel_pixels"));
+    assert_eq!(lines.count(), 3);
+    let summary: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(out.join("summary.json")).unwrap()).unwrap();
+    for key in [
+        "frames",
+        "seconds",
+        "fps",
+        "map",
+        "triangles",
+        "vertices",
+        "map_bytes",
+    ] {
+        assert!(summary.get(key).is_some(), "summary lacks {key}");
+    }
+    assert_eq!(summary["frames"], 3);
+    assert_eq!(summary["map"], "mabdi");
+    let trajectory = std::fs::read_to_string(out.join("trajectory.txt")).unwrap();
+    assert_eq!(
+        trajectory.lines().filter(|l| !l.starts_with('#')).count(),
+        3
+    );
+    let mesh = depthmesh::mesh::io::read_mesh(&out.join("mesh.ply")).unwrap();
+    assert_eq!(
+        mesh.triangle_count() as u64,
+        summary["triangles"].as_u64().unwrap()
+    );
+    assert_eq!(
+        mesh.colors.len(),
+        mesh.positions.len(),
+        "mesh is coloured by iteration"
+    );
+    std::fs::remove_dir_all(out).unwrap();
+}
+
+/// Runs `simulate` with `args` into a fresh folder; it must fail naming
+/// `needles` and leave the folder without any output.
+fn rejects(name: &str, args: &[&str], needles: &[&str]) {
+    let out = scratch(name).join("out");
+    let o = out.to_str().unwrap();
+    let mut all = vec!["simulate", "--quiet", "--out", o];
+    all.extend_from_slice(args);
+    assert_fails_with(&depthmesh(&all), needles);
+    assert!(!out.join("mesh.ply").exists() && !out.join("summary.json").exists());
+}
+
+#[test]
+fn bad_scenes_are_reported_by_file() {
+    let dir = scratch("scenes");
+    let bad = dir.join("bad.toml");
+    std::fs::write(
+        &bad,
+        "[[object]]\nshape = \"box\"\nsize = [0.0, 1.0, 1.0]\n",
+    )
+    .unwrap();
+    rejects(
+        "zero-size",
+        &["--scene", bad.to_str().unwrap()],
+        &["bad.toml", "size"],
+    );
+    std::fs::write(&bad, "[[object]\nshape = \"box\"\n").unwrap();
+    rejects("syntax", &["--scene", bad.to_str().unwrap()], &["bad.toml"]);
+    rejects(
+        "missing",
+        &["--scene", "no-such-scene.toml"],
+        &["no-such-scene.toml"],
+    );
+    rejects(
+        "no-bunny",
+        &["--scene", "../../scenes/bunnies.toml"],
+        &["--bunny"],
+    );
+    let mesh = dir.join("broken.ply");
+    std::fs::write(&mesh, "ply\nformat binary_little_endian 1.0\nelement vertex 10\nproperty float x\nproperty float y\nproperty float z\nend_header\n\0\0").unwrap();
+    rejects(
+        "broken-bunny",
+        &[
+            "--scene",
+            "../../scenes/bunnies.toml",
+            "--bunny",
+            mesh.to_str().unwrap(),
+        ],
+        &["broken.ply"],
+    );
+}
+
+#[test]
+fn nonsensical_parameters_are_rejected() {
+    rejects(
+        "iterations",
+        &["--scene", TABLE, "--iterations", "0"],
+        &["--iterations"],
+    );
+    rejects(
+        "noise",
+        &["--scene", TABLE, "--noise", "gauss"],
+        &["--noise"],
+    );
+    rejects(
+        "sigma",
+        &["--scene", TABLE, "--noise", "zbuffer:-1"],
+        &["--noise"],
+    );
+    rejects(
+        "threshold",
+        &["--scene", TABLE, "--threshold=-0.1"],
+        &["--threshold"],
+    );
+    rejects(
+        "trajectory",
+        &["--scene", TABLE, "--path", "tum:no-such-trajectory.txt"],
+        &["no-such-trajectory.txt"],
+    );
+}
+
+#[test]
+fn a_failed_run_keeps_the_previous_output() {
+    let out = scratch("keep");
+    let o = out.to_str().unwrap();
+    let ok = depthmesh(&[
+        "simulate",
+        "--scene",
+        TABLE,
+        "--iterations",
+        "1",
+        "--quiet",
+        "--out",
+        o,
+    ]);
+    assert!(ok.status.success());
+    let before = std::fs::read(out.join("mesh.ply")).unwrap();
+    let bad = depthmesh(&[
+        "simulate",
+        "--scene",
+        TABLE,
+        "--iterations",
+        "0",
+        "--quiet",
+        "--out",
+        o,
+    ]);
+    assert!(!bad.status.success());
+    assert_eq!(std::fs::read(out.join("mesh.ply")).unwrap(), before);
+    assert!(Path::new(o).read_dir().unwrap().all(|e| !e
+        .unwrap()
+        .file_name()
+        .to_string_lossy()
+        .ends_with(".tmp")));
+    std::fs::remove_dir_all(out).unwrap();
+}
