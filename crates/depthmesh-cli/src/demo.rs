@@ -12,6 +12,8 @@ use std::path::{Path, PathBuf};
 const TABLE_SCENE: &str = include_str!("../../../scenes/table.toml");
 /// The bunnies scene; its mesh comes from `--bunny`.
 const BUNNIES_SCENE: &str = include_str!("../../../scenes/bunnies.toml");
+/// The bunnies scene whose middle bunny goes away in dynamic runs.
+const BUNNIES_REMOVAL_SCENE: &str = include_str!("../../../scenes/bunnies_removal.toml");
 
 /// Flags of `depthmesh demo`.
 #[derive(Args, Debug, Clone)]
@@ -19,7 +21,8 @@ pub struct DemoArgs {
     /// Output folder (one subfolder per run).
     #[arg(long, default_value = "out/demo")]
     pub out: PathBuf,
-    /// Stanford bunny mesh; with it the bunnies runs (2 and 3 of Table 4.1) are added.
+    /// Stanford bunny mesh; with it the bunnies runs (2 and 3 of Table 4.1) and
+    /// an object-removal run are added.
     #[arg(long)]
     pub bunny: Option<PathBuf>,
 }
@@ -46,11 +49,26 @@ pub fn run(args: &DemoArgs, quiet: bool) -> Result<()> {
         dynamic: false,
     }];
     if args.bunny.is_some() {
-        for (name, dynamic) in [("run2-bunnies", false), ("run3-bunnies-dynamic", true)] {
+        let runs = [
+            ("run2-bunnies", BUNNIES_SCENE, "scenes/bunnies.toml", false),
+            (
+                "run3-bunnies-dynamic",
+                BUNNIES_SCENE,
+                "scenes/bunnies.toml",
+                true,
+            ),
+            (
+                "run4-bunnies-removal",
+                BUNNIES_REMOVAL_SCENE,
+                "scenes/bunnies_removal.toml",
+                true,
+            ),
+        ];
+        for (name, scene, source, dynamic) in runs {
             experiments.push(Experiment {
                 name,
-                scene: BUNNIES_SCENE,
-                source: "scenes/bunnies.toml",
+                scene,
+                source,
                 iterations: 50,
                 noise: thesis_noise,
                 dynamic,
