@@ -15,6 +15,7 @@ pub mod palette;
 pub mod raster;
 pub mod sim;
 pub mod trajectory;
+pub mod tsdf;
 
 pub use camera::{Intrinsics, Pose};
 pub use error::{Error, Result};

@@ -1,0 +1,293 @@
+//! Marching cubes over the block map, block by block and incrementally.
+//!
+//! A block owns the edges that start at its voxels (running +x, +y or +z) and
+//! the cubes whose lowest corner is one of its voxels; edges and cubes at its
+//! upper faces reach into the neighbouring blocks. Every vertex therefore
+//! belongs to exactly one block, and a triangle refers to its vertices by
+//! (owning block, edge): assembled, the blocks share their border vertices —
+//! no cracks and no duplicates. A block's piece depends only on the voxels of
+//! the block and its 26 neighbours (cubes and edges reach one voxel up,
+//! normals one voxel either way), so when a block changes, it and its
+//! neighbours are re-meshed and the assembled mesh equals a full extraction.
+
+use super::{cases, voxel_index, TsdfVolume, BLOCK};
+use crate::mesh::Mesh;
+use glam::{IVec3, Vec3};
+use rayon::prelude::*;
+use std::collections::HashMap;
+
+/// A reference to a vertex: the owning block as an offset (bit 0: +x, bit 1:
+/// +y, bit 2: +z from the referring block) and the edge within it.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+struct EdgeRef {
+    owner: u8,
+    edge: u16,
+}
+
+/// The part of the mesh a block owns.
+#[derive(Clone, Debug, Default, PartialEq)]
+struct BlockMesh {
+    /// Edge ids (voxel index · 3 + axis) of the vertices, ascending.
+    edges: Vec<u16>,
+    positions: Vec<Vec3>,
+    normals: Vec<Vec3>,
+    triangles: Vec<[EdgeRef; 3]>,
+}
+
+/// Per-block mesh pieces, kept up to date with a volume.
+#[derive(Debug, Default)]
+pub struct MeshCache {
+    pieces: HashMap<IVec3, BlockMesh>,
+    /// Frame of the volume the pieces reflect.
+    frame: u32,
+    /// Voxels with a smaller weight count as unobserved.
+    min_weight: u16,
+}
+
+/// Side of the gathered neighbourhood: voxels −1..=9 of a block.
+const G: usize = BLOCK + 3;
+
+/// The distances and weights around one block, from the block and its 26
+/// neighbours, so the block can be meshed without further lookups.
+struct Neighbourhood {
+    tsdf: Vec<f32>,
+    weight: Vec<u16>,
+}
+
+impl Neighbourhood {
+    fn gather(volume: &TsdfVolume, key: IVec3) -> Self {
+        let mut n = Neighbourhood {
+            tsdf: vec![0.0; G * G * G],
+            weight: vec![0; G * G * G],
+        };
+        let b = BLOCK as i32;
+        for dz in -1..=1 {
+            for dy in -1..=1 {
+                for dx in -1..=1 {
+                    let Some(&i) = volume.index().get(&(key + IVec3::new(dx, dy, dz))) else {
+                        continue;
+                    };
+                    let block = &volume.blocks()[i as usize];
+                    // The part of that block inside −1..=9 of ours.
+                    let range = |d: i32| -> (i32, i32) {
+                        match d {
+                            -1 => (b - 1, b - 1),
+                            0 => (0, b - 1),
+                            _ => (0, 1),
+                        }
+                    };
+                    let (x0, x1) = range(dx);
+                    let (y0, y1) = range(dy);
+                    let (z0, z1) = range(dz);
+                    for z in z0..=z1 {
+                        for y in y0..=y1 {
+                            for x in x0..=x1 {
+                                let src = voxel_index(x as usize, y as usize, z as usize);
+                                let g = |c: i32, d: i32| (c + d * b + 1) as usize;
+                                let dst = g(x, dx) + G * (g(y, dy) + G * g(z, dz));
+                                n.tsdf[dst] = f32::from(block.tsdf[src]) / super::TSDF_SCALE;
+                                n.weight[dst] = block.weight[src];
+                            }
+                        }
+                    }
+                }
+            }
+        }
+        n
+    }
+
+    /// Index of block-local voxel `v` (each coordinate −1..=9).
+    #[inline]
+    fn at(v: IVec3) -> usize {
+        (v.x + 1) as usize + G * ((v.y + 1) as usize + G * (v.z + 1) as usize)
+    }
+
+    /// Distance gradient at block-local voxel `v` by central differences,
+    /// one-sided where a neighbour was never observed.
+    fn gradient(&self, v: IVec3, min_weight: u16) -> Vec3 {
+        let mut g = Vec3::ZERO;
+        for axis in 0..3 {
+            let e = IVec3::AXES[axis];
+            let sample = |p: IVec3| {
+                let inside = p.cmpge(IVec3::splat(-1)).all()
+                    && p.cmple(IVec3::splat(BLOCK as i32 + 1)).all();
+                let i = Self::at(p);
+                (inside && self.weight[i] >= min_weight).then(|| self.tsdf[i])
+            };
+            let c = self.tsdf[Self::at(v)];
+            let (lo, hi) = (sample(v - e), sample(v + e));
+            g[axis] = match (lo, hi) {
+                (Some(l), Some(h)) => 0.5 * (h - l),
+                (None, Some(h)) => h - c,
+                (Some(l), None) => c - l,
+                (None, None) => 0.0,
+            };
+        }
+        g
+    }
+}
+
+impl MeshCache {
+    /// An empty cache; voxels with a weight below `min_weight` (at least 1)
+    /// are treated as never observed.
+    pub fn new(min_weight: u16) -> Self {
+        MeshCache {
+            pieces: HashMap::new(),
+            frame: 0,
+            min_weight: min_weight.max(1),
+        }
+    }
+
+    /// Re-meshes the blocks changed since the last update and their
+    /// neighbours; returns how many blocks were meshed.
+    pub fn update(&mut self, volume: &TsdfVolume) -> usize {
+        let mut dirty: Vec<IVec3> = Vec::new();
+        for (block, &changed) in volume.blocks().iter().zip(volume.changed_at()) {
+            if changed > self.frame {
+                for d in 0..27 {
+                    let near = block.key + IVec3::new(d % 3 - 1, (d / 3) % 3 - 1, d / 9 - 1);
+                    if volume.index().contains_key(&near) {
+                        dirty.push(near);
+                    }
+                }
+            }
+        }
+        dirty.sort_unstable_by_key(|k| (k.x, k.y, k.z));
+        dirty.dedup();
+        let min_weight = self.min_weight;
+        let pieces: Vec<(IVec3, BlockMesh)> = dirty
+            .par_iter()
+            .map(|&key| (key, mesh_block(volume, key, min_weight)))
+            .collect();
+        for (key, piece) in pieces {
+            self.pieces.insert(key, piece);
+        }
+        self.frame = volume.frames();
+        dirty.len()
+    }
+
+    /// The whole mesh: the blocks' pieces joined, in block-key order.
+    pub fn assemble(&self) -> Mesh {
+        let mut keys: Vec<IVec3> = self.pieces.keys().copied().collect();
+        keys.sort_unstable_by_key(|k| (k.x, k.y, k.z));
+        let mut offsets: HashMap<IVec3, u32> = HashMap::with_capacity(keys.len());
+        let mut mesh = Mesh::default();
+        for k in &keys {
+            let p = &self.pieces[k];
+            offsets.insert(*k, mesh.positions.len() as u32);
+            mesh.positions.extend_from_slice(&p.positions);
+            mesh.normals.extend_from_slice(&p.normals);
+        }
+        for k in &keys {
+            let p = &self.pieces[k];
+            'triangles: for t in &p.triangles {
+                let mut tri = [0u32; 3];
+                for (slot, r) in tri.iter_mut().zip(t) {
+                    let owner = *k
+                        + IVec3::new(
+                            (r.owner & 1) as i32,
+                            ((r.owner >> 1) & 1) as i32,
+                            ((r.owner >> 2) & 1) as i32,
+                        );
+                    let (Some(piece), Some(&base)) = (self.pieces.get(&owner), offsets.get(&owner))
+                    else {
+                        continue 'triangles;
+                    };
+                    let Ok(local) = piece.edges.binary_search(&r.edge) else {
+                        continue 'triangles;
+                    };
+                    *slot = base + local as u32;
+                }
+                mesh.triangles.push(tri);
+            }
+        }
+        mesh
+    }
+}
+
+/// Meshes the edges and cubes block `key` owns.
+fn mesh_block(volume: &TsdfVolume, key: IVec3, min_weight: u16) -> BlockMesh {
+    let n = Neighbourhood::gather(volume, key);
+    let observed = |v: IVec3| n.weight[Neighbourhood::at(v)] >= min_weight;
+    let value = |v: IVec3| n.tsdf[Neighbourhood::at(v)];
+    let b = BLOCK as i32;
+    let mut out = BlockMesh::default();
+    let voxel = volume.config().voxel;
+    // Vertices on the owned edges, in edge-id order.
+    for z in 0..b {
+        for y in 0..b {
+            for x in 0..b {
+                let v = IVec3::new(x, y, z);
+                if !observed(v) {
+                    continue;
+                }
+                for axis in 0..3 {
+                    let w = v + IVec3::AXES[axis];
+                    if !observed(w) {
+                        continue;
+                    }
+                    let (f0, f1) = (value(v), value(w));
+                    if (f0 < 0.0) == (f1 < 0.0) {
+                        continue;
+                    }
+                    let t = f0 / (f0 - f1);
+                    let p0 = volume.voxel_position(key, 0, 0, 0) + v.as_vec3() * voxel;
+                    out.edges
+                        .push((voxel_index(x as usize, y as usize, z as usize) * 3 + axis) as u16);
+                    out.positions
+                        .push(p0 + IVec3::AXES[axis].as_vec3() * (t * voxel));
+                    let g = n.gradient(v, min_weight).lerp(n.gradient(w, min_weight), t);
+                    out.normals.push(g.normalize_or_zero());
+                }
+            }
+        }
+    }
+    // Triangles of the owned cubes.
+    let table = cases::table();
+    for z in 0..b {
+        for y in 0..b {
+            for x in 0..b {
+                let base = IVec3::new(x, y, z);
+                let mut case = 0usize;
+                let mut all_observed = true;
+                for (i, c) in cases::CORNERS.iter().enumerate() {
+                    let v = base + IVec3::new(c[0] as i32, c[1] as i32, c[2] as i32);
+                    all_observed &= observed(v);
+                    if value(v) < 0.0 {
+                        case |= 1 << i;
+                    }
+                }
+                if !all_observed {
+                    continue;
+                }
+                for tri in &table[case] {
+                    out.triangles.push(tri.map(|e| {
+                        let (a, bb) = cases::EDGES[e as usize];
+                        let c = cases::CORNERS[a as usize];
+                        let start = base + IVec3::new(c[0] as i32, c[1] as i32, c[2] as i32);
+                        let d = cases::CORNERS[bb as usize];
+                        let axis = (0..3)
+                            .find(|&k| d[k] != c[k])
+                            .expect("an edge runs along one axis");
+                        let owner = IVec3::new(
+                            (start.x >= b) as i32,
+                            (start.y >= b) as i32,
+                            (start.z >= b) as i32,
+                        );
+                        let local = start - owner * b;
+                        EdgeRef {
+                            owner: (owner.x | owner.y << 1 | owner.z << 2) as u8,
+                            edge: (voxel_index(
+                                local.x as usize,
+                                local.y as usize,
+                                local.z as usize,
+                            ) * 3
+                                + axis) as u16,
+                        }
+                    }));
+                }
+            }
+        }
+    }
+    out
+}

@@ -1,0 +1,143 @@
+//! TSDF fusion and marching cubes on analytic shapes seen from around.
+
+use depthmesh::tsdf::mesh::MeshCache;
+use depthmesh::tsdf::{TsdfConfig, TsdfVolume};
+use depthmesh::{DepthImage, Intrinsics, Mesh, Pose};
+use glam::Vec3;
+use std::collections::HashMap;
+
+/// Depth images of a shape given by its ray intersection, from `views` poses
+/// around it at four elevations, looking at the origin.
+fn scan(
+    hit: impl Fn(Vec3, Vec3) -> Option<f32>,
+    views: usize,
+    volume: &mut TsdfVolume,
+    cache: &mut MeshCache,
+) {
+    let k = Intrinsics::from_vertical_fov(160, 120, 60.0);
+    for i in 0..views {
+        let a = i as f32 / views as f32 * std::f32::consts::TAU;
+        let elevation = [1.0f32, 0.35, -0.35, -1.0][i % 4];
+        let eye = 1.2
+            * Vec3::new(
+                elevation.cos() * a.cos(),
+                elevation.sin(),
+                elevation.cos() * a.sin(),
+            );
+        let pose = Pose::look_at(eye, Vec3::ZERO, Vec3::Y);
+        let mut depth = DepthImage::new(k.width, k.height);
+        for v in 0..k.height {
+            for u in 0..k.width {
+                let dir = pose.transform_vector(k.back_project(u as f32, v as f32, 1.0));
+                if let Some(t) = hit(pose.translation, dir) {
+                    depth.data[(v * k.width + u) as usize] = t; // t is depth for a z = 1 ray
+                }
+            }
+        }
+        volume.integrate(&depth, &k, &pose).unwrap();
+        cache.update(volume);
+    }
+}
+
+fn sphere_hit(r: f32) -> impl Fn(Vec3, Vec3) -> Option<f32> {
+    move |o, d| {
+        let (a, b, c) = (d.dot(d), 2.0 * o.dot(d), o.dot(o) - r * r);
+        let disc = b * b - 4.0 * a * c;
+        (disc >= 0.0)
+            .then(|| (-b - disc.sqrt()) / (2.0 * a))
+            .filter(|t| *t > 0.0)
+    }
+}
+
+fn box_hit(h: Vec3) -> impl Fn(Vec3, Vec3) -> Option<f32> {
+    move |o, d| {
+        let t1 = (-h - o) / d;
+        let t2 = (h - o) / d;
+        let (tn, tf) = (t1.min(t2).max_element(), t1.max(t2).min_element());
+        (tn < tf && tn > 0.0).then_some(tn)
+    }
+}
+
+/// Every edge is shared by exactly two triangles.
+fn is_closed(mesh: &Mesh) -> bool {
+    let mut edges: HashMap<(u32, u32), u32> = HashMap::new();
+    for t in &mesh.triangles {
+        for i in 0..3 {
+            let (a, b) = (t[i], t[(i + 1) % 3]);
+            *edges.entry((a.min(b), a.max(b))).or_default() += 1;
+        }
+    }
+    !edges.is_empty() && edges.values().all(|&n| n == 2)
+}
+
+/// No two vertices at the same place (block borders share theirs).
+fn no_duplicate_vertices(mesh: &Mesh) -> bool {
+    let mut keys: Vec<[u32; 3]> = mesh
+        .positions
+        .iter()
+        .map(|p| p.to_array().map(f32::to_bits))
+        .collect();
+    keys.sort_unstable();
+    keys.windows(2).all(|w| w[0] != w[1])
+}
+
+fn rms(mesh: &Mesh, distance: impl Fn(Vec3) -> f32) -> f32 {
+    let sum: f32 = mesh.positions.iter().map(|&p| distance(p).powi(2)).sum();
+    (sum / mesh.positions.len() as f32).sqrt()
+}
+
+#[test]
+fn sphere_is_closed_and_within_half_a_voxel() {
+    let config = TsdfConfig::new(0.01);
+    let mut volume = TsdfVolume::new(config).unwrap();
+    let mut cache = MeshCache::new(1);
+    scan(sphere_hit(0.25), 16, &mut volume, &mut cache);
+    let mesh = cache.assemble();
+    assert!(mesh.triangle_count() > 5000);
+    let error = rms(&mesh, |p| p.length() - 0.25);
+    assert!(error < 0.5 * config.voxel, "RMS {error} m");
+    assert!(is_closed(&mesh), "the sphere's mesh has cracks or holes");
+    assert!(no_duplicate_vertices(&mesh));
+    // Normals point out of the sphere.
+    let outward = mesh
+        .positions
+        .iter()
+        .zip(&mesh.normals)
+        .filter(|(p, n)| p.dot(**n) > 0.0)
+        .count();
+    assert!(outward as f32 > 0.99 * mesh.positions.len() as f32);
+}
+
+#[test]
+fn box_is_within_half_a_voxel_without_duplicates() {
+    let config = TsdfConfig::new(0.01);
+    let mut volume = TsdfVolume::new(config).unwrap();
+    let mut cache = MeshCache::new(1);
+    let h = Vec3::new(0.2, 0.15, 0.1);
+    scan(box_hit(h), 16, &mut volume, &mut cache);
+    let mesh = cache.assemble();
+    // Distance to the box surface (inside or outside).
+    let distance = |p: Vec3| {
+        let q = p.abs() - h;
+        q.max(Vec3::ZERO).length() + q.max_element().min(0.0)
+    };
+    let error = rms(&mesh, distance);
+    assert!(error < 0.5 * config.voxel, "RMS {error} m");
+    assert!(no_duplicate_vertices(&mesh));
+}
+
+#[test]
+fn incremental_meshing_equals_full_extraction() {
+    let mut volume = TsdfVolume::new(TsdfConfig::new(0.02)).unwrap();
+    let mut incremental = MeshCache::new(1);
+    scan(sphere_hit(0.3), 5, &mut volume, &mut incremental);
+    let mut full = MeshCache::new(1);
+    full.update(&volume);
+    assert_eq!(incremental.assemble(), full.assemble());
+    // A frame that changes nothing re-meshes nothing.
+    let k = Intrinsics::from_vertical_fov(16, 12, 60.0);
+    volume
+        .integrate(&DepthImage::new(16, 12), &k, &Pose::IDENTITY)
+        .unwrap();
+    assert_eq!(incremental.update(&volume), 0);
+}
