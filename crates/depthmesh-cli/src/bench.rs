@@ -111,13 +111,7 @@ fn mabdi(args: &MabdiBenchArgs) -> Result<()> {
             .iter()
             .enumerate()
         {
-            stages[k].push(
-                report
-                    .extra
-                    .iter()
-                    .find(|(n, _)| n == name)
-                    .map_or(0.0, |(_, v)| *v),
-            );
+            stages[k].push(report.get(name).unwrap_or(0.0));
         }
     }
     let [render_e, classify, removal, mesh]: [f64; 4] = stages

@@ -17,7 +17,8 @@ use std::path::{Path, PathBuf};
 pub struct FrameStats {
     /// Frame number (iteration for the simulator).
     pub frame: usize,
-    /// Milliseconds the mapper spent on the frame (no drawing or file writing).
+    /// Milliseconds the iteration took: the sensor's frame and the mapping,
+    /// without drawing or file writing.
     pub ms: f64,
     /// What the mapper reported.
     pub report: IntegrateReport,
@@ -54,12 +55,14 @@ impl RunOutput {
         self.dir.join(name)
     }
 
-    /// Total mapper time in seconds.
+    /// Total iteration time in seconds.
     pub fn seconds(&self) -> f64 {
         self.frames.iter().map(|f| f.ms).sum::<f64>() / 1000.0
     }
 
-    /// Writes `mesh.ply`, `trajectory.txt`, `stats.csv` and `summary.json`.
+    /// Writes `mesh.ply`, `trajectory.txt`, `stats.csv` and, last,
+    /// `summary.json`: an old summary is removed first, so a summary always
+    /// describes the files beside it, even when a later write fails.
     /// `summary` holds the back-end specific keys; the common ones are added
     /// here, and the whole summary is returned.
     pub fn finish(
@@ -69,6 +72,11 @@ impl RunOutput {
         map_bytes: usize,
         mut summary: Map<String, Value>,
     ) -> Result<Map<String, Value>> {
+        let summary_path = self.path("summary.json");
+        if summary_path.exists() {
+            std::fs::remove_file(&summary_path)
+                .with_context(|| format!("cannot replace {}", summary_path.display()))?;
+        }
         write_ply(&self.path("mesh.ply"), mesh, PlyFormat::BinaryLittleEndian)?;
         let tum = format_tum(&self.trajectory);
         write_atomic(&self.path("trajectory.txt"), |w| {
@@ -93,7 +101,7 @@ impl RunOutput {
         summary.insert("vertices".into(), mesh.vertex_count().into());
         summary.insert("map_bytes".into(), map_bytes.into());
         let text = serde_json::to_string_pretty(&summary)?;
-        write_atomic(&self.path("summary.json"), |w| writeln!(w, "{text}"))?;
+        write_atomic(&summary_path, |w| writeln!(w, "{text}"))?;
         Ok(summary)
     }
 

@@ -16,6 +16,9 @@ use serde_json::{json, Map, Value};
 use std::path::{Path, PathBuf};
 use std::time::Instant;
 
+/// More iterations than this is a typo, not a run (each keeps its pose and stats).
+const MAX_ITERATIONS: u32 = 100_000;
+
 /// The map back-ends `simulate` can drive.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, ValueEnum)]
 pub enum MapKind {
@@ -130,8 +133,11 @@ pub fn run(args: &SimulateArgs, quiet: bool) -> Result<RunSummary> {
 
 /// Runs `simulate` on an already loaded scene.
 pub fn run_scene(args: &SimulateArgs, scene: &Scene, quiet: bool) -> Result<RunSummary> {
-    if args.iterations == 0 {
-        bail!("--iterations must be at least 1");
+    if !(1..=MAX_ITERATIONS).contains(&args.iterations) {
+        bail!(
+            "--iterations must be between 1 and {MAX_ITERATIONS}, got {}",
+            args.iterations
+        );
     }
     if let Some(t) = args.threshold {
         if !(t.is_finite() && t > 0.0) {
@@ -154,7 +160,15 @@ pub fn run_scene(args: &SimulateArgs, scene: &Scene, quiet: bool) -> Result<RunS
     let mut out = RunOutput::create(&args.out)?;
     let mut dashboard = args
         .dashboard
-        .then(|| Dashboard::new(scene, &poses, sensor.intrinsics, &out.path("dashboard")))
+        .then(|| {
+            Dashboard::new(
+                map.mapper().name(),
+                scene,
+                &poses,
+                sensor.intrinsics,
+                &out.path("dashboard"),
+            )
+        })
         .transpose()?;
 
     let bar = progress::bar(poses.len() as u64, scene.name.as_str(), quiet);
@@ -211,18 +225,7 @@ pub fn run_scene(args: &SimulateArgs, scene: &Scene, quiet: bool) -> Result<RunS
     // ~1M samples at most keeps the check to about a second on any map.
     let spacing = ((mesh.area() / 1.0e6).sqrt() as f32).max(0.002);
     let within = fraction_within(mesh, &truth, 0.005, spacing);
-    let column = |name: &str| -> f64 {
-        out.frames
-            .iter()
-            .map(|f| {
-                f.report
-                    .extra
-                    .iter()
-                    .find(|(k, _)| *k == name)
-                    .map_or(0.0, |(_, v)| *v)
-            })
-            .sum()
-    };
+    let column = |name: &str| -> f64 { out.frames.iter().filter_map(|f| f.report.get(name)).sum() };
     let naive = column("naive_elements");
     let mut summary = Map::new();
     summary.insert("scene".into(), scene.name.clone().into());
@@ -253,6 +256,7 @@ pub fn run_scene(args: &SimulateArgs, scene: &Scene, quiet: bool) -> Result<RunS
         "sensor_seconds".into(),
         json!(sensor_ms.iter().sum::<f64>() / 1e3),
     );
+    // null for an empty map: there is no surface to judge.
     summary.insert("surface_within_5mm".into(), json!(within));
     let summary = out.finish(name, mesh, stats.bytes, summary)?;
     Ok(RunSummary { summary })

@@ -39,6 +39,8 @@ pub struct MapperView<'a> {
 
 /// Renders and writes dashboard images for a run.
 pub struct Dashboard {
+    /// The back-end's name, for titles and legends.
+    map: &'static str,
     dir: PathBuf,
     view_pose: Pose,
     view: Intrinsics,
@@ -54,7 +56,13 @@ pub struct Dashboard {
 impl Dashboard {
     /// Prepares the dashboard folder and a third-person camera that sees the
     /// whole sensor path from above and outside.
-    pub fn new(scene: &Scene, poses: &[Pose], sensor: Intrinsics, dir: &Path) -> Result<Self> {
+    pub fn new(
+        map: &'static str,
+        scene: &Scene,
+        poses: &[Pose],
+        sensor: Intrinsics,
+        dir: &Path,
+    ) -> Result<Self> {
         std::fs::create_dir_all(dir).with_context(|| format!("cannot create {}", dir.display()))?;
         let bounds = scene.object_bounds();
         let centre = bounds.center();
@@ -64,6 +72,7 @@ impl Dashboard {
             .fold(bounds.extent().length() * 0.5, f32::max);
         let eye = centre + Vec3::new(-0.55, 0.75, 1.0).normalize() * reach * 1.9;
         Ok(Dashboard {
+            map,
             dir: dir.to_path_buf(),
             view_pose: Pose::look_at(eye, centre, Vec3::Y),
             view: Intrinsics::from_vertical_fov(PANEL_WIDTH, PANEL_HEIGHT, 45.0),
@@ -117,7 +126,7 @@ impl Dashboard {
                 *px = [0; 3];
             }
         }
-        let plot = element_plot(frames, false).render(PANEL_WIDTH, PANEL_HEIGHT);
+        let plot = element_plot(self.map, frames, false).render(PANEL_WIDTH, PANEL_HEIGHT);
         let image = compose(
             &DashboardPanels {
                 mesh_view: &mesh_view,
@@ -127,7 +136,7 @@ impl Dashboard {
                 classified: &classified,
                 plot: &plot,
             },
-            &format!("MABDI iteration {iteration} / {}", self.poses.len()),
+            &format!("{} iteration {iteration} / {}", self.map, self.poses.len()),
         );
         let png = image.encode_png();
         let path = self.dir.join(format!("iteration-{iteration:03}.png"));
@@ -137,7 +146,9 @@ impl Dashboard {
 
     /// Writes the final element counts of the map against the naive method.
     pub fn element_plot(&self, frames: &[FrameStats], path: &Path) -> Result<()> {
-        let png = element_plot(frames, true).render(960, 640).encode_png();
+        let png = element_plot(self.map, frames, self.map == "mabdi")
+            .render(960, 640)
+            .encode_png();
         write_atomic(path, |w| w.write_all(&png))?;
         Ok(())
     }
@@ -234,15 +245,15 @@ impl Dashboard {
 
 /// The plot of map size by iteration; with `compare`, also the cumulative
 /// count of the thesis's traditional method that meshes every whole frame.
-fn element_plot(frames: &[FrameStats], compare: bool) -> LinePlot {
-    let map: Vec<(f64, f64)> = frames
+fn element_plot(map: &str, frames: &[FrameStats], compare: bool) -> LinePlot {
+    let counts: Vec<(f64, f64)> = frames
         .iter()
         .map(|f| (f.frame as f64, f.total_elements as f64))
         .collect();
     let mut series = vec![Series {
-        name: "MABDI".into(),
+        name: map.to_uppercase(),
         colour: [30, 90, 200],
-        points: map,
+        points: counts,
         markers: true,
     }];
     if compare {
@@ -250,12 +261,7 @@ fn element_plot(frames: &[FrameStats], compare: bool) -> LinePlot {
         let naive = frames
             .iter()
             .map(|f| {
-                sum += f
-                    .report
-                    .extra
-                    .iter()
-                    .find(|(k, _)| *k == "naive_elements")
-                    .map_or(0.0, |(_, v)| *v);
+                sum += f.report.get("naive_elements").unwrap_or(0.0);
                 (f.frame as f64, sum)
             })
             .collect();

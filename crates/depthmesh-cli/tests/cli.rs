@@ -119,7 +119,7 @@ fn rejects(name: &str, args: &[&str], needles: &[&str]) {
     let mut all = vec!["simulate", "--quiet", "--out", o];
     all.extend_from_slice(args);
     assert_fails_with(&depthmesh(&all), needles);
-    assert!(!out.join("mesh.ply").exists() && !out.join("summary.json").exists());
+    assert!(!out.exists(), "a rejected run created {}", out.display());
 }
 
 #[test]
@@ -192,7 +192,7 @@ fn nonsensical_parameters_are_rejected() {
 }
 
 #[test]
-fn a_failed_run_keeps_the_previous_output() {
+fn a_run_that_fails_while_writing_leaves_no_summary_and_no_temporary_files() {
     let out = scratch("keep");
     let o = out.to_str().unwrap();
     let ok = depthmesh(&[
@@ -206,23 +206,28 @@ fn a_failed_run_keeps_the_previous_output() {
         o,
     ]);
     assert!(ok.status.success());
-    let before = std::fs::read(out.join("mesh.ply")).unwrap();
+    // stats.csv cannot be written if a folder stands in its place.
+    std::fs::remove_file(out.join("stats.csv")).unwrap();
+    std::fs::create_dir(out.join("stats.csv")).unwrap();
     let bad = depthmesh(&[
         "simulate",
         "--scene",
         TABLE,
         "--iterations",
-        "0",
+        "1",
         "--quiet",
         "--out",
         o,
     ]);
-    assert!(!bad.status.success());
-    assert_eq!(std::fs::read(out.join("mesh.ply")).unwrap(), before);
-    assert!(Path::new(o).read_dir().unwrap().all(|e| !e
+    assert_fails_with(&bad, &["stats.csv"]);
+    // The summary marks a complete set of outputs: it must be gone.
+    assert!(!out.join("summary.json").exists());
+    let leftovers: Vec<String> = Path::new(o)
+        .read_dir()
         .unwrap()
-        .file_name()
-        .to_string_lossy()
-        .ends_with(".tmp")));
+        .map(|e| e.unwrap().file_name().to_string_lossy().into_owned())
+        .filter(|n| n.ends_with(".tmp"))
+        .collect();
+    assert!(leftovers.is_empty(), "temporary files left: {leftovers:?}");
     std::fs::remove_dir_all(out).unwrap();
 }

@@ -16,6 +16,13 @@ pub struct IntegrateReport {
     pub extra: Vec<(&'static str, f64)>,
 }
 
+impl IntegrateReport {
+    /// The back-end specific figure called `name`, if reported.
+    pub fn get(&self, name: &str) -> Option<f64> {
+        self.extra.iter().find(|(k, _)| *k == name).map(|(_, v)| *v)
+    }
+}
+
 /// Size of a map.
 #[derive(Clone, Copy, Debug, Default, PartialEq)]
 pub struct MapStats {

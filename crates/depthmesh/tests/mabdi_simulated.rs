@@ -24,12 +24,7 @@ fn run(
         let iteration = i as u32 + 1;
         let frame = sensor.capture(scene, iteration, pose);
         let report = mapper.integrate(&frame, pose).unwrap();
-        let naive = report
-            .extra
-            .iter()
-            .find(|(k, _)| *k == "naive_elements")
-            .unwrap()
-            .1 as usize;
+        let naive = report.get("naive_elements").unwrap() as usize;
         each(iteration, &mut mapper, naive);
     }
     mapper
@@ -58,7 +53,7 @@ fn noise_free_table_is_accurate_compact_and_levels_off() {
     });
     let final_count = mapper.stats().elements;
     let truth = scene.world_mesh(30).0;
-    let within = fraction_within(mapper.mesh(), &truth, 0.005, 0.01);
+    let within = fraction_within(mapper.mesh(), &truth, 0.005, 0.01).unwrap();
     assert!(
         within >= 0.95,
         "only {:.1}% of the mesh within 5 mm",

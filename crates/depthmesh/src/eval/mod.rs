@@ -10,22 +10,26 @@ use rayon::prelude::*;
 /// Points spread over a mesh's surface, about `spacing` metres apart, in a
 /// deterministic pattern (each triangle gets a count proportional to its area,
 /// placed on a low-discrepancy sequence).
+/// A non-positive or non-finite `spacing` gives no points.
 pub fn sample_surface(mesh: &Mesh, spacing: f32) -> Vec<Vec3> {
-    let per_area = 1.0 / (spacing * spacing);
     let mut points = Vec::new();
+    if !(spacing > 0.0 && spacing.is_finite()) {
+        return points;
+    }
+    let per_area = 1.0 / (spacing * spacing);
     let mut carry = 0.0f32;
-    let mut k = 0u32;
+    // The sequence is stepped, not recomputed from the count, so it keeps
+    // its precision over millions of samples.
+    let (mut su, mut sv) = (0.5f64, 0.5f64);
     for t in 0..mesh.triangle_count() {
         let [a, b, c] = mesh.corners(t);
         carry += 0.5 * (b - a).cross(c - a).length() * per_area;
         while carry >= 1.0 {
             carry -= 1.0;
-            k += 1;
             // R2 sequence folded into the triangle.
-            let (mut u, mut v) = (
-                (0.5 + 0.754_877_7 * k as f32).fract(),
-                (0.5 + 0.569_840_3 * k as f32).fract(),
-            );
+            su = (su + 0.754_877_666_246_692_7).fract();
+            sv = (sv + 0.569_840_290_998_053_3).fract();
+            let (mut u, mut v) = (su as f32, sv as f32);
             if u + v > 1.0 {
                 (u, v) = (1.0 - u, 1.0 - v);
             }
@@ -36,18 +40,18 @@ pub fn sample_surface(mesh: &Mesh, spacing: f32) -> Vec<Vec3> {
 }
 
 /// Fraction of `mesh`'s surface (sampled every `spacing` m) that lies within
-/// `tolerance` metres of `reference`.
-pub fn fraction_within(mesh: &Mesh, reference: &Mesh, tolerance: f32, spacing: f32) -> f64 {
+/// `tolerance` metres of `reference`; `None` when there is no surface to sample.
+pub fn fraction_within(mesh: &Mesh, reference: &Mesh, tolerance: f32, spacing: f32) -> Option<f64> {
     let index = MeshDistance::new(reference, tolerance);
     let points = sample_surface(mesh, spacing);
     if points.is_empty() {
-        return 0.0;
+        return None;
     }
     let near = points
         .par_iter()
         .filter(|&&p| index.distance(p).is_some())
         .count();
-    near as f64 / points.len() as f64
+    Some(near as f64 / points.len() as f64)
 }
 
 #[cfg(test)]
@@ -67,7 +71,9 @@ mod tests {
         assert!((left - 0.5).abs() < 0.02);
         let mut lifted = mesh.clone();
         lifted.transform(|p| p + Vec3::new(0.0, 0.0, 0.004), |n| n);
-        assert_eq!(fraction_within(&lifted, &mesh, 0.005, 0.02), 1.0);
-        assert_eq!(fraction_within(&lifted, &mesh, 0.003, 0.02), 0.0);
+        assert_eq!(fraction_within(&lifted, &mesh, 0.005, 0.02), Some(1.0));
+        assert_eq!(fraction_within(&lifted, &mesh, 0.003, 0.02), Some(0.0));
+        assert_eq!(fraction_within(&Mesh::default(), &mesh, 0.003, 0.02), None);
+        assert!(sample_surface(&mesh, 0.0).is_empty());
     }
 }

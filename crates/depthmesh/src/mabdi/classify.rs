@@ -89,7 +89,7 @@ pub fn classify(
             let mut novel = 0;
             for c in 0..w {
                 let d = d_row[c];
-                if d <= 0.0 {
+                if !(d > 0.0 && d.is_finite()) {
                     continue; // stays Invalid
                 }
                 let jump = boundary.at(d);

@@ -45,7 +45,41 @@ pub struct RemovalConfig {
     pub frames: u8,
 }
 
+impl Threshold {
+    /// Rejects thresholds that are not positive and finite, naming `what`.
+    fn validate(&self, what: &str) -> Result<()> {
+        let ok = match *self {
+            Threshold::Normalised { value, near, far } => {
+                value > 0.0 && near > 0.0 && far > near && far.is_finite()
+            }
+            Threshold::Metres(m) => m > 0.0 && m.is_finite(),
+        };
+        if ok {
+            Ok(())
+        } else {
+            Err(Error::parameter(
+                what,
+                format!("{self:?} is not a positive, finite threshold"),
+            ))
+        }
+    }
+}
+
 impl MabdiConfig {
+    /// Rejects settings that cannot work.
+    pub fn validate(&self) -> Result<()> {
+        self.intrinsics.validate()?;
+        self.novelty.validate("novelty threshold")?;
+        self.boundary.validate("boundary threshold")?;
+        if let Some(r) = self.removal {
+            r.threshold.validate("removal threshold")?;
+            if r.frames == 0 {
+                return Err(Error::parameter("removal frames", "must be at least 1"));
+            }
+        }
+        Ok(())
+    }
+
     /// The thesis's settings for a sensor with range `[near, far]` metres,
     /// with removal on. Removal needs the sensor to see at least
     /// 0.005 in normalised depth (≈ 0.005·z² m, 2.5σ of the thesis's noise)
@@ -87,6 +121,17 @@ pub struct MabdiMapper {
 
 /// Checks a frame against the configured sensor.
 fn check_frame(frame: &Frame, intrinsics: &Intrinsics) -> Result<()> {
+    if frame.depth.data.len() != intrinsics.pixel_count() {
+        return Err(Error::parameter(
+            format!("frame {}", frame.index),
+            format!(
+                "depth image holds {} values for {}×{} pixels",
+                frame.depth.data.len(),
+                frame.depth.width,
+                frame.depth.height
+            ),
+        ));
+    }
     if frame.depth.width != intrinsics.width || frame.depth.height != intrinsics.height {
         return Err(Error::parameter(
             format!("frame {}", frame.index),
@@ -106,9 +151,15 @@ impl MabdiMapper {
     }
 
     /// A map that starts from an existing global mesh (e.g. a saved map).
-    pub fn with_mesh(config: MabdiConfig, mesh: Mesh) -> Result<Self> {
-        config.intrinsics.validate()?;
+    /// Its normals are dropped (added surface has none) and, if it has no
+    /// colours, it is shown in grey rather than in an iteration's colour.
+    pub fn with_mesh(config: MabdiConfig, mut mesh: Mesh) -> Result<Self> {
+        config.validate()?;
         mesh.check().map_err(|m| Error::parameter("mesh", m))?;
+        mesh.normals.clear();
+        if mesh.colors.is_empty() {
+            mesh.colors = vec![[160, 160, 160]; mesh.positions.len()];
+        }
         let mut chunks = ChunkBounds::default();
         chunks.extend(&mesh.positions, &mesh.triangles);
         Ok(MabdiMapper {
@@ -311,7 +362,7 @@ pub struct NaiveMapper {
 impl NaiveMapper {
     /// An empty map; only the intrinsics and the boundary threshold of `config` are used.
     pub fn new(config: MabdiConfig) -> Result<Self> {
-        config.intrinsics.validate()?;
+        config.validate()?;
         Ok(NaiveMapper {
             config,
             mesh: Mesh::default(),
@@ -348,7 +399,7 @@ impl Mapper for NaiveMapper {
         if self.nothing.data.len() != frame.depth.data.len() {
             self.nothing = DepthImage::new(k.width, k.height);
         }
-        classify(
+        let novel_pixels = classify(
             &frame.depth,
             &self.nothing,
             self.config.novelty,
@@ -370,7 +421,10 @@ impl Mapper for NaiveMapper {
         Ok(IntegrateReport {
             new_elements: added,
             removed_elements: 0,
-            extra: vec![("naive_elements", added as f64)],
+            extra: vec![
+                ("novel_pixels", novel_pixels as f64),
+                ("naive_elements", added as f64),
+            ],
         })
     }
 

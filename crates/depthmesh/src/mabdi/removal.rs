@@ -17,9 +17,11 @@
 //! * A triangle contradicted in `frames_to_remove` frames without being
 //!   confirmed in between is removed.
 //!
-//! With the thesis threshold (0.01·z² m) and its noise (σ ≈ 0.002·z² m), a
-//! contradiction needs a ~5σ error at all nine pixels, so noise does not erode
-//! unchanged surfaces.
+//! The default threshold is 0.005 in normalised depth (≈ 0.005·z² m, half the
+//! novelty threshold); with the thesis's noise (σ ≈ 0.002·z² m) a false
+//! contradiction needs a 2.5σ error at all nine pixels in two frames, so noise
+//! does not erode unchanged surfaces. What noise does remove is noise:
+//! triangles made from a noisy spike that later frames see through.
 
 use crate::image::DepthImage;
 use crate::mabdi::classify::Threshold;

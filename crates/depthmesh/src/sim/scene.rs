@@ -391,6 +391,9 @@ impl ObjectFile {
             |p| rotation * (scale * p) + translation,
             |n| rotation * (n / scale),
         );
+        if mesh.positions.iter().any(|p| !p.is_finite()) {
+            return Err("the transformed object does not fit in 32-bit floats (size, scale or translation too large)".into());
+        }
         if mesh.normals.is_empty() {
             mesh.compute_vertex_normals();
         }
@@ -421,8 +424,13 @@ impl ObjectFile {
     /// dropped because normals are recomputed after the transform.
     fn local_mesh(&self, source: &Path, options: &SceneOptions) -> Result<Mesh, String> {
         let radius = || required_positive("radius", self.radius);
+        // Beyond a few thousand segments a shape only costs memory.
+        const MAX_SEGMENTS: u32 = 4096;
         let segments = |default: u32, min: u32| match self.segments {
             Some(s) if s < min => Err(format!("`segments` must be at least {min}, got {s}")),
+            Some(s) if s > MAX_SEGMENTS => Err(format!(
+                "`segments` must be at most {MAX_SEGMENTS}, got {s}"
+            )),
             s => Ok(s.unwrap_or(default)),
         };
         Ok(match self.shape {
@@ -447,8 +455,6 @@ impl ObjectFile {
                     .ok_or("missing `path` (the mesh file)")?;
                 let path = mesh_path(raw, source, &options.variables)?;
                 let mut mesh = read_mesh(&path).map_err(|e| e.to_string())?;
-                mesh.check()
-                    .map_err(|m| format!("{}: {m}", path.display()))?;
                 if mesh.is_empty() {
                     return Err(format!("{}: the mesh has no triangles", path.display()));
                 }
