@@ -129,3 +129,71 @@ impl Evidence<'_> {
         *vote >= self.frames_to_remove
     }
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// A 5×5 image at 2 m everywhere, with the carver's evidence for it.
+    fn judge_at(depth_m: f32, triangle_z: f32, votes: &mut u8) -> bool {
+        let depth = DepthImage {
+            width: 5,
+            height: 5,
+            data: vec![depth_m; 25],
+        };
+        let mut carver = Carver::default();
+        let (_, evidence) = carver.prepare(&depth, 1, Threshold::Metres(0.05), 2);
+        // A small triangle around pixel (2, 2) at depth `triangle_z`.
+        let w = 1.0 / triangle_z;
+        evidence.judge(votes, &[[1.8, 1.8, w], [2.2, 1.9, w], [2.0, 2.3, w]])
+    }
+
+    #[test]
+    fn contradicted_twice_is_removed_confirmed_resets_occluded_is_kept() {
+        let mut v = 0;
+        assert!(
+            !judge_at(2.0, 1.5, &mut v),
+            "one contradiction is not enough"
+        );
+        assert_eq!(v, 1);
+        assert!(judge_at(2.0, 1.5, &mut v), "two contradictions remove");
+        let mut v = 1;
+        judge_at(2.0, 1.98, &mut v);
+        assert_eq!(v, 0, "a measurement on the triangle confirms it");
+        let mut v = 1;
+        judge_at(1.0, 1.5, &mut v);
+        assert_eq!(
+            v, 1,
+            "a triangle behind the measured surface is occluded, not judged"
+        );
+        let mut v = 1;
+        judge_at(0.0, 1.5, &mut v);
+        assert_eq!(v, 1, "no measurement, no evidence");
+    }
+
+    #[test]
+    fn silhouettes_and_borders_give_no_evidence() {
+        // Background at 3 m with a foreground pixel at 1 m next to the triangle's pixel.
+        let mut data = vec![3.0; 25];
+        data[2 * 5 + 3] = 1.0;
+        let depth = DepthImage {
+            width: 5,
+            height: 5,
+            data,
+        };
+        let mut carver = Carver::default();
+        let (_, evidence) = carver.prepare(&depth, 1, Threshold::Metres(0.05), 1);
+        let w = 1.0 / 1.0;
+        let mut v = 0;
+        // The triangle at 1 m projects next to the foreground: the 3×3 minimum protects it.
+        assert!(!evidence.judge(&mut v, &[[1.8, 1.8, w], [2.2, 1.9, w], [2.0, 2.3, w]]));
+        // At the image border there is no full neighbourhood: no evidence either.
+        assert!(!evidence.judge(&mut v, &[[0.0, 0.0, 0.5], [0.2, 0.0, 0.5], [0.0, 0.2, 0.5]]));
+        // Behind the camera: no evidence.
+        assert!(!evidence.judge(
+            &mut v,
+            &[[2.0, 2.0, -1.0], [2.2, 2.0, -1.0], [2.0, 2.2, -1.0]]
+        ));
+        assert_eq!(v, 0);
+    }
+}
