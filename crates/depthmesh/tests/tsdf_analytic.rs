@@ -91,7 +91,7 @@ fn sphere_is_closed_and_within_half_a_voxel() {
     let config = TsdfConfig::new(0.01);
     let mut volume = TsdfVolume::new(config).unwrap();
     let mut cache = MeshCache::new(1);
-    scan(sphere_hit(0.25), 16, &mut volume, &mut cache);
+    scan(&sphere_hit(0.25), 16, &mut volume, &mut cache);
     let mesh = cache.assemble();
     assert!(mesh.triangle_count() > 5000);
     let error = rms(&mesh, |p| p.length() - 0.25);
@@ -114,7 +114,7 @@ fn box_is_within_half_a_voxel_without_duplicates() {
     let mut volume = TsdfVolume::new(config).unwrap();
     let mut cache = MeshCache::new(1);
     let h = Vec3::new(0.2, 0.15, 0.1);
-    scan(box_hit(h), 16, &mut volume, &mut cache);
+    scan(&box_hit(h), 16, &mut volume, &mut cache);
     let mesh = cache.assemble();
     // Distance to the box surface (inside or outside).
     let distance = |p: Vec3| {
@@ -130,7 +130,7 @@ fn box_is_within_half_a_voxel_without_duplicates() {
 fn incremental_meshing_equals_full_extraction() {
     let mut volume = TsdfVolume::new(TsdfConfig::new(0.02)).unwrap();
     let mut incremental = MeshCache::new(1);
-    scan(sphere_hit(0.3), 5, &mut volume, &mut incremental);
+    scan(&sphere_hit(0.3), 5, &mut volume, &mut incremental);
     let mut full = MeshCache::new(1);
     full.update(&volume);
     assert_eq!(incremental.assemble(), full.assemble());
@@ -140,4 +140,50 @@ fn incremental_meshing_equals_full_extraction() {
         .integrate(&DepthImage::new(16, 12), &k, &Pose::IDENTITY)
         .unwrap();
     assert_eq!(incremental.update(&volume), 0);
+}
+
+#[test]
+fn ray_casting_sees_the_fused_sphere() {
+    let config = TsdfConfig::new(0.01);
+    let mut volume = TsdfVolume::new(config).unwrap();
+    let mut cache = MeshCache::new(1);
+    let hit = sphere_hit(0.25);
+    scan(&hit, 16, &mut volume, &mut cache);
+    let k = Intrinsics::from_vertical_fov(80, 60, 60.0);
+    let pose = Pose::look_at(Vec3::new(0.3, 0.2, -1.0), Vec3::ZERO, Vec3::Y);
+    let mut image = depthmesh::tsdf::raycast::RaycastImage::default();
+    volume.raycast(&k, &pose, 0.1, 3.0, &mut image);
+    let (mut errors, mut misses) = (Vec::new(), 0);
+    for v in 0..k.height {
+        for u in 0..k.width {
+            let i = (v * k.width + u) as usize;
+            let dir = pose.transform_vector(k.back_project(u as f32, v as f32, 1.0));
+            match (hit(pose.translation, dir), image.depth.data[i]) {
+                (Some(want), got) if got > 0.0 => {
+                    errors.push((got - want).abs());
+                    let p = image.points[i];
+                    assert!(
+                        image.normals[i].dot(p.normalize()) > 0.8,
+                        "normal at ({u},{v})"
+                    );
+                }
+                (Some(_), _) | (None, _) if image.depth.data[i] == 0.0 => {}
+                _ => misses += 1,
+            }
+        }
+    }
+    assert!(errors.len() > 400, "{} hits", errors.len());
+    // A few silhouette pixels may catch the fused surface's slightly blurred rim.
+    assert!(
+        misses * 50 < errors.len(),
+        "{misses} pixels see a surface where there is none"
+    );
+    // Depth errors grow towards the silhouette, where rays graze the surface.
+    errors.sort_by(f32::total_cmp);
+    let mean = errors.iter().sum::<f32>() / errors.len() as f32;
+    let p95 = errors[errors.len() * 95 / 100];
+    assert!(
+        mean < 0.5 * config.voxel && p95 < config.voxel,
+        "mean {mean} m, 95th percentile {p95} m"
+    );
 }

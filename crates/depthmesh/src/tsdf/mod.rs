@@ -9,6 +9,7 @@
 
 pub mod cases;
 pub mod mesh;
+pub mod raycast;
 
 use crate::camera::{Intrinsics, Pose};
 use crate::error::{Error, Result};
