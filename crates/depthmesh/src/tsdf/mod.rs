@@ -8,6 +8,7 @@
 //! see [`mesh`].
 
 pub mod cases;
+pub mod mapper;
 pub mod mesh;
 pub mod raycast;
 

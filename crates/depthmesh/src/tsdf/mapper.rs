@@ -1,0 +1,100 @@
+//! The TSDF back-end behind the common [`Mapper`] interface: fuse, keep the
+//! mesh of changed blocks up to date, predict depth by ray casting.
+
+use super::mesh::MeshCache;
+use super::raycast::RaycastImage;
+use super::{TsdfConfig, TsdfVolume};
+use crate::camera::{Intrinsics, Pose};
+use crate::error::Result;
+use crate::image::{DepthImage, Frame};
+use crate::map::{IntegrateReport, MapStats, Mapper};
+use crate::mesh::Mesh;
+use std::time::Instant;
+
+/// TSDF fusion with marching cubes, re-meshing changed blocks every frame.
+#[derive(Debug)]
+pub struct TsdfMapper {
+    intrinsics: Intrinsics,
+    volume: TsdfVolume,
+    cache: MeshCache,
+    mesh: Mesh,
+    /// Whether `mesh` reflects the cache.
+    assembled: bool,
+    /// Range of depths ray casting searches.
+    range: (f32, f32),
+}
+
+impl TsdfMapper {
+    /// An empty map for frames from `intrinsics`; ray casts look for surface
+    /// between `near` and `far` metres.
+    pub fn new(config: TsdfConfig, intrinsics: Intrinsics, near: f32, far: f32) -> Result<Self> {
+        intrinsics.validate()?;
+        Ok(TsdfMapper {
+            intrinsics,
+            volume: TsdfVolume::new(config)?,
+            cache: MeshCache::new(1),
+            mesh: Mesh::default(),
+            assembled: true,
+            range: (near, far),
+        })
+    }
+
+    /// The fused volume.
+    pub fn volume(&self) -> &TsdfVolume {
+        &self.volume
+    }
+
+    /// Ray casts the volume from `pose` (depth, points, normals).
+    pub fn raycast(&self, intrinsics: &Intrinsics, pose: &Pose, out: &mut RaycastImage) {
+        self.volume.raycast(intrinsics, pose, self.range.0, self.range.1, out);
+    }
+}
+
+impl Mapper for TsdfMapper {
+    fn name(&self) -> &'static str {
+        "tsdf"
+    }
+
+    fn integrate(&mut self, frame: &Frame, pose: &Pose) -> Result<IntegrateReport> {
+        let start = Instant::now();
+        let blocks_before = self.volume.blocks().len();
+        self.volume.integrate(&frame.depth, &self.intrinsics, pose)?;
+        let integrated = start.elapsed();
+        let remeshed = self.cache.update(&self.volume);
+        let meshed = start.elapsed() - integrated;
+        self.assembled = false;
+        Ok(IntegrateReport {
+            // The map's elements are voxels, allocated a block at a time.
+            new_elements: (self.volume.blocks().len() - blocks_before) * super::BLOCK_VOXELS,
+            removed_elements: 0,
+            extra: vec![
+                ("blocks", self.volume.blocks().len() as f64),
+                ("remeshed_blocks", remeshed as f64),
+                ("integrate_ms", integrated.as_secs_f64() * 1e3),
+                ("remesh_ms", meshed.as_secs_f64() * 1e3),
+            ],
+        })
+    }
+
+    fn render_depth(&self, intrinsics: &Intrinsics, pose: &Pose) -> DepthImage {
+        let mut image = RaycastImage::default();
+        self.raycast(intrinsics, pose, &mut image);
+        image.depth
+    }
+
+    fn mesh(&mut self) -> &Mesh {
+        if !self.assembled {
+            self.mesh = self.cache.assemble();
+            self.assembled = true;
+        }
+        &self.mesh
+    }
+
+    fn stats(&self) -> MapStats {
+        MapStats {
+            elements: self.volume.blocks().len() * super::BLOCK_VOXELS,
+            vertices: self.mesh.vertex_count(),
+            bytes: self.volume.voxel_bytes(),
+        }
+    }
+}
