@@ -5,6 +5,7 @@
 
 pub mod atomic;
 pub mod camera;
+pub mod dataset;
 pub mod error;
 pub mod eval;
 pub mod image;
