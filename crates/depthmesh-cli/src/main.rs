@@ -5,6 +5,7 @@ mod demo;
 mod draw;
 mod output;
 mod progress;
+mod reconstruct;
 mod simulate;
 mod views;
 
@@ -26,6 +27,8 @@ struct Cli {
 enum Command {
     /// Map a simulated sensor circling a scene file.
     Simulate(simulate::SimulateArgs),
+    /// Map a recorded depth sequence with poses (7-Scenes or TUM layout).
+    Reconstruct(reconstruct::ReconstructArgs),
     /// Run the thesis's experiments on the built-in scenes and summarise them.
     Demo(demo::DemoArgs),
     /// Measure speed on generated data (figures as JSON).
@@ -38,6 +41,7 @@ fn main() -> ExitCode {
     let result = match cli.command {
         Command::Simulate(args) => simulate::run(&args, cli.quiet).map(|_| ()),
         Command::Demo(args) => demo::run(&args, cli.quiet),
+        Command::Reconstruct(args) => reconstruct::run(&args, cli.quiet),
         Command::Bench(command) => bench::run(&command),
     };
     match result {

@@ -11,9 +11,12 @@ use crate::map::{IntegrateReport, MapStats, Mapper};
 use crate::mesh::Mesh;
 use std::time::Instant;
 
-/// TSDF fusion with marching cubes, re-meshing changed blocks every frame.
+/// TSDF fusion with marching cubes; the blocks changed since the last
+/// re-mesh are re-meshed every `remesh_every` frames, or when the mesh is asked for.
 #[derive(Debug)]
 pub struct TsdfMapper {
+    /// Re-mesh changed blocks every this many frames (0: only on demand).
+    pub remesh_every: u32,
     intrinsics: Intrinsics,
     volume: TsdfVolume,
     cache: MeshCache,
@@ -30,6 +33,7 @@ impl TsdfMapper {
     pub fn new(config: TsdfConfig, intrinsics: Intrinsics, near: f32, far: f32) -> Result<Self> {
         intrinsics.validate()?;
         Ok(TsdfMapper {
+            remesh_every: 0,
             intrinsics,
             volume: TsdfVolume::new(config)?,
             cache: MeshCache::new(1),
@@ -44,9 +48,18 @@ impl TsdfMapper {
         &self.volume
     }
 
+    /// A full marching-cubes extraction from scratch (what the kept,
+    /// incrementally updated mesh equals).
+    pub fn extract_mesh(&self) -> Mesh {
+        let mut cache = MeshCache::new(1);
+        cache.update(&self.volume);
+        cache.assemble()
+    }
+
     /// Ray casts the volume from `pose` (depth, points, normals).
     pub fn raycast(&self, intrinsics: &Intrinsics, pose: &Pose, out: &mut RaycastImage) {
-        self.volume.raycast(intrinsics, pose, self.range.0, self.range.1, out);
+        self.volume
+            .raycast(intrinsics, pose, self.range.0, self.range.1, out);
     }
 }
 
@@ -58,9 +71,15 @@ impl Mapper for TsdfMapper {
     fn integrate(&mut self, frame: &Frame, pose: &Pose) -> Result<IntegrateReport> {
         let start = Instant::now();
         let blocks_before = self.volume.blocks().len();
-        self.volume.integrate(&frame.depth, &self.intrinsics, pose)?;
+        self.volume
+            .integrate(&frame.depth, &self.intrinsics, pose)?;
         let integrated = start.elapsed();
-        let remeshed = self.cache.update(&self.volume);
+        let due = self.remesh_every > 0 && self.volume.frames() % self.remesh_every == 0;
+        let remeshed = if due {
+            self.cache.update(&self.volume)
+        } else {
+            0
+        };
         let meshed = start.elapsed() - integrated;
         self.assembled = false;
         Ok(IntegrateReport {
@@ -84,6 +103,7 @@ impl Mapper for TsdfMapper {
 
     fn mesh(&mut self) -> &Mesh {
         if !self.assembled {
+            self.cache.update(&self.volume);
             self.mesh = self.cache.assemble();
             self.assembled = true;
         }

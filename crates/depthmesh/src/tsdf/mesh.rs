@@ -6,9 +6,11 @@
 //! belongs to exactly one block, and a triangle refers to its vertices by
 //! (owning block, edge): assembled, the blocks share their border vertices —
 //! no cracks and no duplicates. A block's piece depends only on the voxels of
-//! the block and its 26 neighbours (cubes and edges reach one voxel up,
-//! normals one voxel either way), so when a block changes, it and its
-//! neighbours are re-meshed and the assembled mesh equals a full extraction.
+//! the block and its seven neighbours above (cubes and edges reach one voxel
+//! up, normals two; at a block's lower faces normals use one-sided
+//! differences rather than reach down), so when a block changes, it and the
+//! seven blocks below it are re-meshed and the assembled mesh equals a full
+//! extraction.
 
 use super::{cases, voxel_index, TsdfVolume, BLOCK};
 use crate::mesh::Mesh;
@@ -44,51 +46,38 @@ pub struct MeshCache {
     min_weight: u16,
 }
 
-/// Side of the gathered neighbourhood: voxels −1..=9 of a block.
-const G: usize = BLOCK + 3;
+/// Side of the gathered neighbourhood: voxels 0..=9 of a block.
+const G: usize = BLOCK + 2;
 
-/// The distances and weights around one block, from the block and its 26
-/// neighbours, so the block can be meshed without further lookups.
+/// The distances and weights of a block and the first two voxel layers of
+/// its neighbours above, so the block can be meshed without further lookups.
 struct Neighbourhood {
-    tsdf: Vec<f32>,
-    weight: Vec<u16>,
+    tsdf: [f32; G * G * G],
+    weight: [u16; G * G * G],
 }
 
 impl Neighbourhood {
     fn gather(volume: &TsdfVolume, key: IVec3) -> Self {
         let mut n = Neighbourhood {
-            tsdf: vec![0.0; G * G * G],
-            weight: vec![0; G * G * G],
+            tsdf: [0.0; G * G * G],
+            weight: [0; G * G * G],
         };
         let b = BLOCK as i32;
-        for dz in -1..=1 {
-            for dy in -1..=1 {
-                for dx in -1..=1 {
-                    let Some(&i) = volume.index().get(&(key + IVec3::new(dx, dy, dz))) else {
-                        continue;
-                    };
-                    let block = &volume.blocks()[i as usize];
-                    // The part of that block inside −1..=9 of ours.
-                    let range = |d: i32| -> (i32, i32) {
-                        match d {
-                            -1 => (b - 1, b - 1),
-                            0 => (0, b - 1),
-                            _ => (0, 1),
-                        }
-                    };
-                    let (x0, x1) = range(dx);
-                    let (y0, y1) = range(dy);
-                    let (z0, z1) = range(dz);
-                    for z in z0..=z1 {
-                        for y in y0..=y1 {
-                            for x in x0..=x1 {
-                                let src = voxel_index(x as usize, y as usize, z as usize);
-                                let g = |c: i32, d: i32| (c + d * b + 1) as usize;
-                                let dst = g(x, dx) + G * (g(y, dy) + G * g(z, dz));
-                                n.tsdf[dst] = f32::from(block.tsdf[src]) / super::TSDF_SCALE;
-                                n.weight[dst] = block.weight[src];
-                            }
-                        }
+        for d in 0..8 {
+            let offset = IVec3::new(d & 1, (d >> 1) & 1, (d >> 2) & 1);
+            let Some(&i) = volume.index().get(&(key + offset)) else {
+                continue;
+            };
+            let block = &volume.blocks()[i as usize];
+            // Our own block whole; of a neighbour above, its first two layers.
+            let end = |o: i32| if o == 0 { b } else { 2 };
+            for z in 0..end(offset.z) {
+                for y in 0..end(offset.y) {
+                    for x in 0..end(offset.x) {
+                        let src = voxel_index(x as usize, y as usize, z as usize);
+                        let dst = Self::at(IVec3::new(x, y, z) + offset * b);
+                        n.tsdf[dst] = f32::from(block.tsdf[src]) / super::TSDF_SCALE;
+                        n.weight[dst] = block.weight[src];
                     }
                 }
             }
@@ -96,10 +85,10 @@ impl Neighbourhood {
         n
     }
 
-    /// Index of block-local voxel `v` (each coordinate −1..=9).
+    /// Index of block-local voxel `v` (each coordinate 0..=9).
     #[inline]
     fn at(v: IVec3) -> usize {
-        (v.x + 1) as usize + G * ((v.y + 1) as usize + G * (v.z + 1) as usize)
+        v.x as usize + G * (v.y as usize + G * v.z as usize)
     }
 
     /// Distance gradient at block-local voxel `v` by central differences,
@@ -109,10 +98,11 @@ impl Neighbourhood {
         for axis in 0..3 {
             let e = IVec3::AXES[axis];
             let sample = |p: IVec3| {
-                let inside = p.cmpge(IVec3::splat(-1)).all()
-                    && p.cmple(IVec3::splat(BLOCK as i32 + 1)).all();
+                if !(p.cmpge(IVec3::ZERO).all() && p.cmplt(IVec3::splat(G as i32)).all()) {
+                    return None;
+                }
                 let i = Self::at(p);
-                (inside && self.weight[i] >= min_weight).then(|| self.tsdf[i])
+                (self.weight[i] >= min_weight).then(|| self.tsdf[i])
             };
             let c = self.tsdf[Self::at(v)];
             let (lo, hi) = (sample(v - e), sample(v + e));
@@ -138,16 +128,16 @@ impl MeshCache {
         }
     }
 
-    /// Re-meshes the blocks changed since the last update and their
-    /// neighbours; returns how many blocks were meshed.
+    /// Re-meshes the blocks changed since the last update and the seven
+    /// blocks below each; returns how many blocks were meshed.
     pub fn update(&mut self, volume: &TsdfVolume) -> usize {
         let mut dirty: Vec<IVec3> = Vec::new();
         for (block, &changed) in volume.blocks().iter().zip(volume.changed_at()) {
             if changed > self.frame {
-                for d in 0..27 {
-                    let near = block.key + IVec3::new(d % 3 - 1, (d / 3) % 3 - 1, d / 9 - 1);
-                    if volume.index().contains_key(&near) {
-                        dirty.push(near);
+                for d in 0..8 {
+                    let below = block.key - IVec3::new(d & 1, (d >> 1) & 1, (d >> 2) & 1);
+                    if volume.index().contains_key(&below) {
+                        dirty.push(below);
                     }
                 }
             }
