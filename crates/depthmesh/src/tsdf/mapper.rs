@@ -74,7 +74,7 @@ impl Mapper for TsdfMapper {
         self.volume
             .integrate(&frame.depth, &self.intrinsics, pose)?;
         let integrated = start.elapsed();
-        let due = self.remesh_every > 0 && self.volume.frames() % self.remesh_every == 0;
+        let due = self.remesh_every > 0 && self.volume.frames().is_multiple_of(self.remesh_every);
         let remeshed = if due {
             self.cache.update(&self.volume)
         } else {
