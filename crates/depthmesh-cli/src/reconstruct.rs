@@ -75,7 +75,7 @@ pub fn run(args: &ReconstructArgs, quiet: bool) -> Result<()> {
         );
     }
     let options = DatasetOptions {
-        frames: args.frames.clone(),
+        frames: args.frames,
         stride: args.stride,
         depth_min: args.depth_min,
         depth_max: args.depth_max,
