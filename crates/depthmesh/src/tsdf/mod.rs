@@ -207,6 +207,10 @@ impl TsdfVolume {
             t
         };
         let config = self.config;
+        // 1 / (w + 1) for every weight a voxel can have: a division less per voxel.
+        let reciprocal: Vec<f32> = (0..=config.max_weight as usize)
+            .map(|w| 1.0 / (w as f32 + 1.0))
+            .collect();
         let world_to_camera = pose.inverse();
         let k = *intrinsics;
         self.blocks
@@ -215,7 +219,7 @@ impl TsdfVolume {
             .zip(touched.par_iter())
             .filter(|(_, t)| **t)
             .for_each(|((block, changed), _)| {
-                if integrate_block(block, &config, &k, &world_to_camera, depth) {
+                if integrate_block(block, &config, &k, &world_to_camera, depth, &reciprocal) {
                     *changed = frame;
                 }
             });
@@ -295,6 +299,7 @@ fn integrate_block(
     k: &Intrinsics,
     world_to_camera: &Pose,
     depth: &DepthImage,
+    reciprocal: &[f32],
 ) -> bool {
     let v = c.voxel;
     let origin = (block.key * BLOCK as i32).as_vec3() * v;
@@ -332,9 +337,11 @@ fn integrate_block(
                 let t = (sdf * inv_trunc).min(1.0);
                 let i = voxel_index(x, y, z);
                 let wt = block.weight[i];
-                let old = f32::from(block.tsdf[i]) / TSDF_SCALE;
-                let fused = (old * f32::from(wt) + t) / (f32::from(wt) + 1.0);
-                block.tsdf[i] = (fused * TSDF_SCALE).round() as i16;
+                // Running average in stored units: old + (new − old) / (w + 1),
+                // rounded half away from zero without a libm call.
+                let old = f32::from(block.tsdf[i]);
+                let fused = old + (t * TSDF_SCALE - old) * reciprocal[usize::from(wt)];
+                block.tsdf[i] = (fused + 0.5f32.copysign(fused)) as i16;
                 block.weight[i] = (wt + 1).min(c.max_weight);
                 changed = true;
             }

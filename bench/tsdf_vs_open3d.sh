@@ -1,0 +1,35 @@
+#!/usr/bin/env bash
+# TSDF fusion of 7-Scenes frames with the given poses: depthmesh against
+# Open3D's VoxelBlockGrid with the same voxel size, truncation and depth range,
+# side by side on this machine: integration frames/s, full mesh extraction
+# time, and how far the two meshes are from each other.
+#
+# Usage: bench/tsdf_vs_open3d.sh [FRAMES_END] [VOXEL]     (defaults 100, 0.01)
+# Needs ../shared beside the repository (or DEPTHMESH_SHARED).
+set -euo pipefail
+cd "$(dirname "$0")/.."
+shared=${DEPTHMESH_SHARED:-../shared}
+data=$shared/data/7scenes-redkitchen
+if [[ ! -x $shared/tools/setup-anchors.sh || ! -d $data ]]; then
+  echo "error: reference tools or 7-Scenes frames not found under $shared (set DEPTHMESH_SHARED)" >&2
+  exit 1
+fi
+end=${1:-100}
+voxel=${2:-0.01}
+PY=$("$shared/tools/setup-anchors.sh")
+cargo build --release --quiet
+work=$(mktemp -d)
+trap 'rm -rf "$work"' EXIT
+./target/release/depthmesh reconstruct "$data" --frames "0..$end" --voxel "$voxel" --quiet --out "$work/ours"
+theirs=$("$PY" "$shared/tools/open3d_tsdf.py" "$data" --end "$end" --voxel "$voxel" --out "$work/open3d.ply" | tail -1)
+compare=$("$PY" "$shared/tools/mesh_compare.py" "$work/ours/mesh.ply" "$work/open3d.ply" --threshold "$voxel" | tail -1)
+python3 - "$work/ours/summary.json" "$theirs" "$compare" <<'PY'
+import json, sys
+ours = json.load(open(sys.argv[1])); theirs = json.loads(sys.argv[2]); cmp = json.loads(sys.argv[3])
+print(f"frames {ours['frames']}, voxel {ours['voxel']:.3f} m, truncation {ours['truncation']:.3f} m")
+print(f"integration   depthmesh {ours['integrate_fps']:6.1f} frames/s   Open3D {theirs['integrate_fps']:6.1f} frames/s   ratio {ours['integrate_fps'] / theirs['integrate_fps']:.2f}x")
+print(f"mesh          depthmesh {ours['mesh_seconds']:6.3f} s          Open3D {theirs['mesh_seconds']:6.3f} s          ratio {theirs['mesh_seconds'] / ours['mesh_seconds']:.2f}x")
+print(f"triangles     depthmesh {ours['triangles']}   Open3D {theirs['triangles']}")
+print(f"memory        {ours['bytes_per_voxel']:.1f} bytes per voxel, {ours['blocks']} blocks")
+print(f"agreement     mean distance ours→Open3D {cmp['accuracy_mean']*1000:.2f} mm, Open3D→ours {cmp['completeness_mean']*1000:.2f} mm, F-score at one voxel {cmp['fscore']:.3f}")
+PY
