@@ -90,6 +90,7 @@ pub fn run(args: &DemoArgs, quiet: bool) -> Result<()> {
             bunny: args.bunny.clone(),
             path: PathSpec::Helix,
             threshold: None,
+            voxel: 0.01,
             keep_removed: false,
             dashboard: true,
             out: args.out.join(e.name),

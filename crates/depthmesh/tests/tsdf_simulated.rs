@@ -1,0 +1,29 @@
+//! TSDF fusion of a simulated, noisy scan of the table scene.
+
+use depthmesh::eval::fraction_within;
+use depthmesh::map::Mapper;
+use depthmesh::sim::{NoiseModel, PathSpec, Scene, SceneOptions, SimulatedSensor};
+use depthmesh::tsdf::mapper::TsdfMapper;
+use depthmesh::tsdf::TsdfConfig;
+use depthmesh::Intrinsics;
+
+#[test]
+fn noisy_table_scan_is_within_a_centimetre() {
+    let text = include_str!("../../../scenes/table.toml");
+    let scene = Scene::parse(text, "table.toml".as_ref(), &SceneOptions::default()).unwrap();
+    let k = Intrinsics::from_vertical_fov(320, 240, 60.0);
+    let mut sensor = SimulatedSensor::new(k, 0.8, 4.0, NoiseModel::Kinect, 3).unwrap();
+    let mut mapper = TsdfMapper::new(TsdfConfig::new(0.01), k, 0.8, 4.0).unwrap();
+    let poses = PathSpec::Helix.build(&scene, 20).unwrap();
+    for (i, pose) in poses.iter().enumerate() {
+        let frame = sensor.capture(&scene, i as u32 + 1, pose);
+        mapper.integrate(&frame, pose).unwrap();
+    }
+    let truth = scene.world_mesh(20).0;
+    let within = fraction_within(mapper.mesh(), &truth, 0.01, 0.01).unwrap();
+    assert!(
+        within >= 0.95,
+        "{:.1}% of the mesh within 1 cm",
+        within * 100.0
+    );
+}
