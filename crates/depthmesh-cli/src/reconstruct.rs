@@ -1,16 +1,23 @@
 //! `depthmesh reconstruct`: a recorded depth sequence with poses into a map.
 
+use crate::draw::canvas::Canvas;
+use crate::draw::colormap::normal_shade;
 use crate::output::{FrameStats, RunOutput};
 use crate::progress;
 use anyhow::{bail, Context, Result};
 use clap::{Args, ValueEnum};
+use depthmesh::atomic::write_atomic;
 use depthmesh::dataset::{Dataset, DatasetOptions, FrameRange, IntrinsicsSpec};
 use depthmesh::mabdi::{MabdiConfig, MabdiMapper};
 use depthmesh::map::Mapper;
 use depthmesh::tsdf::mapper::TsdfMapper;
+use depthmesh::tsdf::raycast::RaycastImage;
 use depthmesh::tsdf::{TsdfConfig, BLOCK_VOXELS};
+use depthmesh::{Intrinsics, Pose};
+use glam::Vec3;
 use serde_json::{json, Map};
-use std::path::PathBuf;
+use std::io::Write;
+use std::path::{Path, PathBuf};
 use std::time::Instant;
 
 /// The back-ends `reconstruct` can drive.
@@ -54,6 +61,9 @@ pub struct ReconstructArgs {
     /// Re-mesh the changed blocks every N frames (tsdf; 0: once, at the end).
     #[arg(long, default_value_t = 0)]
     pub remesh_every: u32,
+    /// Write a shaded ray-cast "status image" of the map every N frames (tsdf).
+    #[arg(long, default_value_t = 0)]
+    pub status_every: usize,
     /// Go on past unreadable frames, reporting them.
     #[arg(long)]
     pub skip_bad_frames: bool,
@@ -111,7 +121,7 @@ pub fn run(args: &ReconstructArgs, quiet: bool) -> Result<()> {
             k, 0.8, 4.0,
         ))?)),
     };
-    let mapper = map.mapper();
+    let mut raycast = RaycastImage::default();
     let mut out = RunOutput::create(&args.out)?;
     let bar = progress::bar(dataset.len() as u64, "reconstruct", quiet);
     let mut frames = dataset.frames();
@@ -124,6 +134,7 @@ pub fn run(args: &ReconstructArgs, quiet: bool) -> Result<()> {
             )
         })?;
         let start = Instant::now();
+        let mapper = map.mapper();
         let report = mapper
             .integrate(&frame, &pose)
             .with_context(|| format!("frame {}", frame.index))?;
@@ -137,6 +148,11 @@ pub fn run(args: &ReconstructArgs, quiet: bool) -> Result<()> {
             total_vertices: stats.vertices,
         });
         out.trajectory.push((frame.timestamp, pose));
+        if let RealMap::Tsdf(t) = &map {
+            if args.status_every > 0 && out.frames.len() % args.status_every == 0 {
+                write_status_image(t, &k, &pose, &mut raycast, &out.path("status"), frame.index)?;
+            }
+        }
         bar.inc(1);
     }
     bar.finish_and_clear();
@@ -179,6 +195,37 @@ pub fn run(args: &ReconstructArgs, quiet: bool) -> Result<()> {
         }
     };
     out.finish(name, &mesh, bytes, summary)?;
+    Ok(())
+}
+
+/// The map seen from the camera, shaded by its normals (KinectFusion's
+/// status view), as `status/frame-NNNNNN.png`.
+fn write_status_image(
+    map: &TsdfMapper,
+    k: &Intrinsics,
+    pose: &Pose,
+    raycast: &mut RaycastImage,
+    dir: &Path,
+    frame: usize,
+) -> Result<()> {
+    std::fs::create_dir_all(dir).with_context(|| format!("cannot create {}", dir.display()))?;
+    map.raycast(k, pose, raycast);
+    let light = pose.transform_vector(Vec3::new(0.3, -0.5, -1.0));
+    let mut canvas = Canvas::new(k.width, k.height, [0; 3]);
+    for ((px, &d), &n) in canvas
+        .pixels
+        .iter_mut()
+        .zip(&raycast.depth.data)
+        .zip(&raycast.normals)
+    {
+        if d > 0.0 {
+            *px = [(230.0 * normal_shade(n, light)) as u8; 3];
+        }
+    }
+    let png = canvas.encode_png();
+    write_atomic(&dir.join(format!("frame-{frame:06}.png")), |w| {
+        w.write_all(&png)
+    })?;
     Ok(())
 }
 
