@@ -43,6 +43,9 @@ pub struct ReconstructArgs {
     /// Truncation distance in metres (tsdf; default 4 voxels).
     #[arg(long)]
     pub trunc: Option<f32>,
+    /// Keep colour from the dataset's colour images (tsdf; 3 more bytes per voxel).
+    #[arg(long)]
+    pub color: bool,
     /// Frame numbers to use, half-open: A..B, A.. or ..B.
     #[arg(long)]
     pub frames: Option<FrameRange>,
@@ -94,7 +97,7 @@ pub fn run(args: &ReconstructArgs, quiet: bool) -> Result<()> {
             .as_deref()
             .map(IntrinsicsSpec::from_arg)
             .transpose()?,
-        color: false,
+        color: args.color,
         skip_bad_frames: args.skip_bad_frames,
     };
     let dataset = Dataset::open(&args.dataset, &options)?;
@@ -108,6 +111,7 @@ pub fn run(args: &ReconstructArgs, quiet: bool) -> Result<()> {
             if let Some(t) = args.trunc {
                 config.truncation = t;
             }
+            config.color = args.color;
             RealMap::Tsdf(Box::new(TsdfMapper::new(
                 config,
                 k,

@@ -34,7 +34,7 @@ fn scan(
                 }
             }
         }
-        volume.integrate(&depth, &k, &pose).unwrap();
+        volume.integrate(&depth, None, &k, &pose).unwrap();
         cache.update(volume);
     }
 }
@@ -137,7 +137,7 @@ fn incremental_meshing_equals_full_extraction() {
     // A frame that changes nothing re-meshes nothing.
     let k = Intrinsics::from_vertical_fov(16, 12, 60.0);
     volume
-        .integrate(&DepthImage::new(16, 12), &k, &Pose::IDENTITY)
+        .integrate(&DepthImage::new(16, 12), None, &k, &Pose::IDENTITY)
         .unwrap();
     assert_eq!(incremental.update(&volume), 0);
 }

@@ -72,7 +72,7 @@ impl Mapper for TsdfMapper {
         let start = Instant::now();
         let blocks_before = self.volume.blocks().len();
         self.volume
-            .integrate(&frame.depth, &self.intrinsics, pose)?;
+            .integrate(&frame.depth, frame.color.as_ref(), &self.intrinsics, pose)?;
         let integrated = start.elapsed();
         let due = self.remesh_every > 0 && self.volume.frames().is_multiple_of(self.remesh_every);
         let remeshed = if due {

@@ -33,6 +33,8 @@ struct BlockMesh {
     edges: Vec<u16>,
     positions: Vec<Vec3>,
     normals: Vec<Vec3>,
+    /// Vertex colours, when the volume keeps colour.
+    colors: Vec<[u8; 3]>,
     triangles: Vec<[EdgeRef; 3]>,
 }
 
@@ -54,6 +56,7 @@ const G: usize = BLOCK + 2;
 struct Neighbourhood {
     tsdf: [f32; G * G * G],
     weight: [u16; G * G * G],
+    color: [[u8; 3]; G * G * G],
 }
 
 impl Neighbourhood {
@@ -61,6 +64,7 @@ impl Neighbourhood {
         let mut n = Neighbourhood {
             tsdf: [0.0; G * G * G],
             weight: [0; G * G * G],
+            color: [[0; 3]; G * G * G],
         };
         let b = BLOCK as i32;
         for d in 0..8 {
@@ -78,6 +82,9 @@ impl Neighbourhood {
                         let dst = Self::at(IVec3::new(x, y, z) + offset * b);
                         n.tsdf[dst] = f32::from(block.tsdf[src]) / super::TSDF_SCALE;
                         n.weight[dst] = block.weight[src];
+                        if let Some(c) = &block.color {
+                            n.color[dst] = c[src];
+                        }
                     }
                 }
             }
@@ -167,6 +174,7 @@ impl MeshCache {
             offsets.insert(*k, mesh.positions.len() as u32);
             mesh.positions.extend_from_slice(&p.positions);
             mesh.normals.extend_from_slice(&p.normals);
+            mesh.colors.extend_from_slice(&p.colors);
         }
         for k in &keys {
             let p = &self.pieces[k];
@@ -228,6 +236,14 @@ fn mesh_block(volume: &TsdfVolume, key: IVec3, min_weight: u16) -> BlockMesh {
                         .push(p0 + IVec3::AXES[axis].as_vec3() * (t * voxel));
                     let g = n.gradient(v, min_weight).lerp(n.gradient(w, min_weight), t);
                     out.normals.push(g.normalize_or_zero());
+                    if volume.config().color {
+                        let (c0, c1) =
+                            (n.color[Neighbourhood::at(v)], n.color[Neighbourhood::at(w)]);
+                        out.colors.push(std::array::from_fn(|ch| {
+                            (f32::from(c0[ch]) + (f32::from(c1[ch]) - f32::from(c0[ch])) * t + 0.5)
+                                as u8
+                        }));
+                    }
                 }
             }
         }

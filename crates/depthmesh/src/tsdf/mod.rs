@@ -14,7 +14,7 @@ pub mod raycast;
 
 use crate::camera::{Intrinsics, Pose};
 use crate::error::{Error, Result};
-use crate::image::DepthImage;
+use crate::image::{ColorImage, DepthImage};
 use glam::{IVec3, Vec3};
 use rayon::prelude::*;
 use std::collections::HashMap;
@@ -36,6 +36,8 @@ pub struct TsdfConfig {
     pub truncation: f32,
     /// Weights stop growing here, so the map keeps adapting to change.
     pub max_weight: u16,
+    /// Keep an RGB colour per voxel (3 more bytes) from the frames' colour images.
+    pub color: bool,
 }
 
 impl TsdfConfig {
@@ -45,6 +47,7 @@ impl TsdfConfig {
             voxel,
             truncation: 4.0 * voxel,
             max_weight: 1024,
+            color: false,
         }
     }
 
@@ -81,6 +84,8 @@ pub struct Block {
     pub tsdf: Box<[i16; BLOCK_VOXELS]>,
     /// Fusion weight per voxel; 0 = never observed.
     pub weight: Box<[u16; BLOCK_VOXELS]>,
+    /// Averaged colour per voxel, when the volume keeps colour.
+    pub color: Option<Box<[[u8; 3]; BLOCK_VOXELS]>>,
 }
 
 /// Index of voxel `(x, y, z)` inside a block.
@@ -168,9 +173,9 @@ impl TsdfVolume {
         &self.changed_at
     }
 
-    /// Bytes held by the voxels (4 per voxel).
+    /// Bytes held by the voxels (4 per voxel, 7 with colour).
     pub fn voxel_bytes(&self) -> usize {
-        self.blocks.len() * BLOCK_VOXELS * 4
+        self.blocks.len() * BLOCK_VOXELS * if self.config.color { 7 } else { 4 }
     }
 
     /// World position of voxel `(x, y, z)` of the block with `key`.
@@ -180,13 +185,28 @@ impl TsdfVolume {
         (key * BLOCK as i32).as_vec3() * v + Vec3::new(x as f32, y as f32, z as f32) * v
     }
 
-    /// Fuses one depth image (metres, 0 = none) taken from `pose`.
+    /// Fuses one depth image (metres, 0 = none) taken from `pose`, and its
+    /// colour image (same camera) when the volume keeps colour.
     pub fn integrate(
         &mut self,
         depth: &DepthImage,
+        color: Option<&ColorImage>,
         intrinsics: &Intrinsics,
         pose: &Pose,
     ) -> Result<()> {
+        let color = match (self.config.color, color) {
+            (true, Some(c)) if c.width != depth.width || c.height != depth.height => {
+                return Err(Error::parameter(
+                    "colour image",
+                    format!(
+                        "{}×{} but the depth image is {}×{}",
+                        c.width, c.height, depth.width, depth.height
+                    ),
+                ));
+            }
+            (true, c) => c,
+            (false, _) => None,
+        };
         if depth.width != intrinsics.width || depth.height != intrinsics.height {
             return Err(Error::parameter(
                 "depth image",
@@ -219,7 +239,15 @@ impl TsdfVolume {
             .zip(touched.par_iter())
             .filter(|(_, t)| **t)
             .for_each(|((block, changed), _)| {
-                if integrate_block(block, &config, &k, &world_to_camera, depth, &reciprocal) {
+                if integrate_block(
+                    block,
+                    &config,
+                    &k,
+                    &world_to_camera,
+                    depth,
+                    color,
+                    &reciprocal,
+                ) {
                     *changed = frame;
                 }
             });
@@ -274,6 +302,7 @@ impl TsdfVolume {
                     key,
                     tsdf: Box::new([0; BLOCK_VOXELS]),
                     weight: Box::new([0; BLOCK_VOXELS]),
+                    color: c.color.then(|| Box::new([[0; 3]; BLOCK_VOXELS])),
                 });
                 self.changed_at.push(0);
             }
@@ -299,6 +328,7 @@ fn integrate_block(
     k: &Intrinsics,
     world_to_camera: &Pose,
     depth: &DepthImage,
+    color: Option<&ColorImage>,
     reciprocal: &[f32],
 ) -> bool {
     let v = c.voxel;
@@ -326,7 +356,8 @@ fn integrate_block(
                     continue;
                 }
                 let (u, vv) = (fu as i32, fv as i32);
-                let d = depth.data[(vv * w + u) as usize];
+                let pixel = (vv * w + u) as usize;
+                let d = depth.data[pixel];
                 if d <= 0.0 {
                     continue;
                 }
@@ -342,6 +373,16 @@ fn integrate_block(
                 let old = f32::from(block.tsdf[i]);
                 let fused = old + (t * TSDF_SCALE - old) * reciprocal[usize::from(wt)];
                 block.tsdf[i] = (fused + 0.5f32.copysign(fused)) as i16;
+                // Colour only near the surface, where it belongs to it.
+                if let (Some(colors), Some(image)) = (block.color.as_deref_mut(), color) {
+                    if sdf.abs() < c.truncation {
+                        let (old, new) = (colors[i], image.data[pixel]);
+                        colors[i] = std::array::from_fn(|ch| {
+                            let o = f32::from(old[ch]);
+                            (o + (f32::from(new[ch]) - o) * reciprocal[usize::from(wt)] + 0.5) as u8
+                        });
+                    }
+                }
                 block.weight[i] = (wt + 1).min(c.max_weight);
                 changed = true;
             }
