@@ -259,10 +259,12 @@ impl TsdfVolume {
     fn allocate(&mut self, depth: &DepthImage, k: &Intrinsics, pose: &Pose) {
         let c = self.config;
         let block_size = c.voxel * BLOCK as f32;
-        // Blocks are ≥ 8 voxels wide, so sampling every few pixels and every
-        // half block along the band cannot miss one (at 4 m a 4-pixel step is
-        // about 3 cm, below the 8 cm of 1 cm-voxel blocks).
-        let step = 4usize;
+        // Blocks are 8 voxels wide, so sampling every few pixels and every
+        // half block along the band cannot miss one: the gap between sampled
+        // rays, at most `(max depth + truncation) · step / f`, stays below half a block.
+        let farthest = depth.data.iter().fold(0.0f32, |m, &d| m.max(d)) + c.truncation;
+        let step =
+            ((0.5 * block_size * k.fx.min(k.fy) / farthest.max(1e-3)).floor() as usize).clamp(1, 8);
         let w = depth.width as usize;
         let rows: Vec<Vec<IVec3>> = (0..depth.height as usize)
             .into_par_iter()
@@ -339,29 +341,38 @@ fn integrate_block(
     let (w, h) = (depth.width as i32, depth.height as i32);
     let inv_trunc = 1.0 / c.truncation;
     let mut changed = false;
+    // A row of voxels at a time: first project all eight (branch-free, so it
+    // vectorises), then update those that land on a measurement.
+    let mut pixel = [0u32; BLOCK];
+    let mut depth_z = [0.0f32; BLOCK];
     for z in 0..BLOCK {
         for y in 0..BLOCK {
             let row = base + dy * y as f32 + dz * z as f32;
             for x in 0..BLOCK {
                 let p = row + dx * x as f32;
-                if p.z <= 0.0 {
-                    continue;
-                }
                 // Nearest pixel, as the reference implementations do; the
                 // range test comes first so truncation is flooring.
                 let inv = 1.0 / p.z;
                 let fu = k.fx * p.x * inv + k.cx + 0.5;
                 let fv = k.fy * p.y * inv + k.cy + 0.5;
-                if !(fu >= 0.0 && fv >= 0.0 && fu < w as f32 && fv < h as f32) {
+                let inside = p.z > 0.0 && fu >= 0.0 && fv >= 0.0 && fu < w as f32 && fv < h as f32;
+                pixel[x] = if inside {
+                    fv as u32 * w as u32 + fu as u32
+                } else {
+                    u32::MAX
+                };
+                depth_z[x] = p.z;
+            }
+            for x in 0..BLOCK {
+                if pixel[x] == u32::MAX {
                     continue;
                 }
-                let (u, vv) = (fu as i32, fv as i32);
-                let pixel = (vv * w + u) as usize;
-                let d = depth.data[pixel];
+                let px = pixel[x] as usize;
+                let d = depth.data[px];
                 if d <= 0.0 {
                     continue;
                 }
-                let sdf = d - p.z;
+                let sdf = d - depth_z[x];
                 if sdf < -c.truncation {
                     continue;
                 }
@@ -376,7 +387,7 @@ fn integrate_block(
                 // Colour only near the surface, where it belongs to it.
                 if let (Some(colors), Some(image)) = (block.color.as_deref_mut(), color) {
                     if sdf.abs() < c.truncation {
-                        let (old, new) = (colors[i], image.data[pixel]);
+                        let (old, new) = (colors[i], image.data[px]);
                         colors[i] = std::array::from_fn(|ch| {
                             let o = f32::from(old[ch]);
                             (o + (f32::from(new[ch]) - o) * reciprocal[usize::from(wt)] + 0.5) as u8
