@@ -132,7 +132,11 @@ impl RunOutput {
                     f.total_vertices
                 )?;
                 for (_, v) in &f.report.extra {
-                    write!(w, ",{v}")?;
+                    if v.fract() == 0.0 {
+                        write!(w, ",{v}")?;
+                    } else {
+                        write!(w, ",{v:.3}")?;
+                    }
                 }
                 writeln!(w)?;
             }

@@ -281,18 +281,15 @@ impl Mapper for MabdiMapper {
             _ => 0,
         };
         let removal_ms = lap();
-        let added = self.mesher.mesh(
-            &frame.depth,
+        let added = append_novel(
+            &mut self.mesher,
+            &mut self.mesh,
+            frame,
             &self.classes,
-            |c| c == PixelClass::Novel,
             &k,
             pose,
-            &mut self.mesh.positions,
-            &mut self.mesh.triangles,
+            self.iteration,
         );
-        self.mesh
-            .colors
-            .resize(self.mesh.positions.len(), iteration_color(self.iteration));
         self.chunks
             .extend(&self.mesh.positions, &self.mesh.triangles);
         let mesh_ms = lap();
@@ -337,6 +334,31 @@ fn render_mesh_depth(mesh: &Mesh, intrinsics: &Intrinsics, pose: &Pose) -> Depth
     target.depth
 }
 
+/// Meshes the novel pixels of a frame onto the end of `mesh`, in the colour
+/// of `iteration`; returns how many triangles were added.
+fn append_novel(
+    mesher: &mut DepthMesher,
+    mesh: &mut Mesh,
+    frame: &Frame,
+    classes: &[PixelClass],
+    intrinsics: &Intrinsics,
+    pose: &Pose,
+    iteration: u32,
+) -> usize {
+    let added = mesher.mesh(
+        &frame.depth,
+        classes,
+        |c| c == PixelClass::Novel,
+        intrinsics,
+        pose,
+        &mut mesh.positions,
+        &mut mesh.triangles,
+    );
+    mesh.colors
+        .resize(mesh.positions.len(), iteration_color(iteration));
+    added
+}
+
 /// Size of a mesh map: 12 bytes a vertex position, 3 of colour, 12 a triangle.
 fn mesh_stats(mesh: &Mesh) -> MapStats {
     MapStats {
@@ -372,9 +394,7 @@ impl NaiveMapper {
             nothing: DepthImage::default(),
         })
     }
-}
 
-impl NaiveMapper {
     /// The map's mesh.
     pub fn mesh_ref(&self) -> &Mesh {
         &self.mesh
@@ -406,18 +426,15 @@ impl Mapper for NaiveMapper {
             self.config.boundary,
             &mut self.classes,
         );
-        let added = self.mesher.mesh(
-            &frame.depth,
+        let added = append_novel(
+            &mut self.mesher,
+            &mut self.mesh,
+            frame,
             &self.classes,
-            |c| c == PixelClass::Novel,
             &k,
             pose,
-            &mut self.mesh.positions,
-            &mut self.mesh.triangles,
+            self.iteration,
         );
-        self.mesh
-            .colors
-            .resize(self.mesh.positions.len(), iteration_color(self.iteration));
         Ok(IntegrateReport {
             new_elements: added,
             removed_elements: 0,
