@@ -1,8 +1,11 @@
 //! Triangle meshes and their files.
 
+pub mod chunk;
 pub mod io;
 pub mod obj;
 pub mod ply;
+pub mod simplify;
+pub mod weld;
 
 use glam::Vec3;
 
