@@ -1,6 +1,7 @@
 //! Triangle meshes and their files.
 
 pub mod chunk;
+pub mod glb;
 pub mod io;
 pub mod obj;
 pub mod ply;
