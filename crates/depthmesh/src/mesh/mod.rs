@@ -1,5 +1,6 @@
 //! Triangle meshes and their files.
 
+pub mod align;
 pub mod chunk;
 pub mod glb;
 pub mod io;
