@@ -7,6 +7,7 @@ pub mod atomic;
 pub mod camera;
 pub mod error;
 pub mod eval;
+pub mod export;
 pub mod image;
 pub mod mabdi;
 pub mod map;
