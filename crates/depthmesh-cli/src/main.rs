@@ -3,9 +3,11 @@
 mod bench;
 mod demo;
 mod draw;
+mod export;
 mod output;
 mod progress;
 mod reconstruct;
+mod simplify;
 mod simulate;
 mod views;
 
@@ -34,6 +36,10 @@ enum Command {
     /// Measure speed on generated data (figures as JSON).
     #[command(subcommand)]
     Bench(bench::BenchCommand),
+    /// Simplify a mesh file by quadric edge collapse.
+    Simplify(simplify::SimplifyArgs),
+    /// Write a mesh as game-engine assets: chunked GLB, OBJ or PLY.
+    Export(export::ExportArgs),
 }
 
 fn main() -> ExitCode {
@@ -43,6 +49,8 @@ fn main() -> ExitCode {
         Command::Demo(args) => demo::run(&args, cli.quiet),
         Command::Reconstruct(args) => reconstruct::run(&args, cli.quiet),
         Command::Bench(command) => bench::run(&command),
+        Command::Simplify(args) => simplify::run(&args, cli.quiet),
+        Command::Export(args) => export::run(&args, cli.quiet),
     };
     match result {
         Ok(()) => ExitCode::SUCCESS,

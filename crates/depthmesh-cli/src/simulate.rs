@@ -1,6 +1,7 @@
 //! `depthmesh simulate`: a simulated sensor follows a path through a scene
 //! file and a map back-end builds the mesh.
 
+use crate::export::RunExportArgs;
 use crate::output::{FrameStats, RunOutput};
 use crate::progress;
 use crate::views::{Dashboard, MapperView};
@@ -74,6 +75,8 @@ pub struct SimulateArgs {
     /// Output folder.
     #[arg(long)]
     pub out: PathBuf,
+    #[command(flatten)]
+    pub export: RunExportArgs,
 }
 
 /// The back-ends `simulate` drives, kept concrete so the dashboard can show
@@ -155,6 +158,7 @@ pub fn run_scene(args: &SimulateArgs, scene: &Scene, quiet: bool) -> Result<RunS
             bail!("--threshold must be a positive number of metres, got {t}");
         }
     }
+    args.export.check()?;
     let poses = args.path.build(scene, args.iterations)?;
     let mut sensor = SimulatedSensor::kinect(args.noise, args.seed);
     let mut config = MabdiConfig::thesis(sensor.intrinsics, sensor.near, sensor.far);
@@ -277,5 +281,6 @@ pub fn run_scene(args: &SimulateArgs, scene: &Scene, quiet: bool) -> Result<RunS
     summary.insert("surface_within_5mm".into(), json!(within));
     summary.insert("surface_within_1cm".into(), json!(within_1cm));
     let summary = out.finish(name, mesh, stats.bytes, summary)?;
+    args.export.write(mesh, &args.out)?;
     Ok(RunSummary { summary })
 }

@@ -8,6 +8,7 @@ pub mod camera;
 pub mod dataset;
 pub mod error;
 pub mod eval;
+pub mod export;
 pub mod image;
 pub mod mabdi;
 pub mod map;

@@ -1,6 +1,7 @@
 //! Reading and writing mesh files, chosen by extension.
 
 use crate::error::{Error, Result};
+use crate::mesh::glb::{read_glb, write_glb, GlbNode};
 use crate::mesh::obj::{read_obj, write_obj};
 use crate::mesh::ply::{read_ply, write_ply, PlyFormat};
 use crate::mesh::Mesh;
@@ -10,6 +11,7 @@ use std::path::Path;
 enum Kind {
     Ply,
     Obj,
+    Glb,
 }
 
 fn kind(path: &Path) -> Result<Kind> {
@@ -19,35 +21,52 @@ fn kind(path: &Path) -> Result<Kind> {
     match extension.as_deref() {
         Some("ply") => Ok(Kind::Ply),
         Some("obj") => Ok(Kind::Obj),
+        Some("glb") => Ok(Kind::Glb),
         other => Err(Error::format(
             path,
             format!(
-                "unsupported mesh file extension {} (supported: .ply, .obj)",
+                "unsupported mesh file extension {} (supported: .ply, .obj, .glb)",
                 other.map_or("(none)".to_string(), |e| format!("'.{e}'"))
             ),
         )),
     }
 }
 
-/// Reads a PLY (ASCII or binary) or OBJ mesh, chosen by the file's extension
-/// (case-insensitive). The result is checked, so every index is in range and
-/// every attribute covers every vertex.
+/// Reads a PLY (ASCII or binary), OBJ or GLB mesh, chosen by the file's
+/// extension (case-insensitive). The result is checked, so every index is in
+/// range and every attribute covers every vertex. A GLB file's nodes are
+/// joined, leaving out collision meshes.
 pub fn read_mesh(path: &Path) -> Result<Mesh> {
     let mesh = match kind(path)? {
         Kind::Ply => read_ply(path)?,
         Kind::Obj => read_obj(path)?,
+        Kind::Glb => {
+            let mut mesh = Mesh::default();
+            for node in read_glb(path)?.iter().filter(|n| !n.collision) {
+                mesh.append(&node.mesh);
+            }
+            mesh
+        }
     };
     mesh.check().map_err(|m| Error::format(path, m))?;
     Ok(mesh)
 }
 
-/// Writes a mesh as binary little-endian PLY or OBJ, chosen by the extension,
+/// Writes a mesh as binary little-endian PLY, OBJ or GLB (one node), chosen by the extension,
 /// through a temporary file renamed into place so a failure never leaves a partial file.
 /// An inconsistent mesh (see [`Mesh::check`]) is rejected before anything is written.
 pub fn write_mesh(path: &Path, mesh: &Mesh) -> Result<()> {
     match kind(path)? {
         Kind::Ply => write_ply(path, mesh, PlyFormat::BinaryLittleEndian),
         Kind::Obj => write_obj(path, mesh),
+        Kind::Glb => write_glb(
+            path,
+            &[GlbNode {
+                name: "mesh",
+                mesh,
+                collision: false,
+            }],
+        ),
     }
 }
 
@@ -69,7 +88,7 @@ mod tests {
     #[test]
     fn round_trips_by_extension_case_insensitively() {
         let dir = ScratchDir::new("io-ext");
-        for name in ["a.ply", "b.PLY", "c.obj", "d.Obj"] {
+        for name in ["a.ply", "b.PLY", "c.obj", "d.Obj", "e.glb"] {
             let path = dir.path().join(name);
             write_mesh(&path, &sample()).unwrap();
             assert_eq!(read_mesh(&path).unwrap(), sample(), "{name}");
@@ -108,7 +127,7 @@ mod tests {
         let dir = ScratchDir::new("io-invalid");
         let mut mesh = sample();
         mesh.normals.pop();
-        for name in ["m.ply", "m.obj"] {
+        for name in ["m.ply", "m.obj", "m.glb"] {
             let e = write_mesh(&dir.path().join(name), &mesh).unwrap_err();
             assert!(matches!(e, Error::Parameter { .. }), "{e}");
         }

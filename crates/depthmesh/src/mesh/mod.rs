@@ -1,8 +1,13 @@
 //! Triangle meshes and their files.
 
+pub mod align;
+pub mod chunk;
+pub mod glb;
 pub mod io;
 pub mod obj;
 pub mod ply;
+pub mod simplify;
+pub mod weld;
 
 use glam::Vec3;
 
