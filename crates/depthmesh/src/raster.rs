@@ -711,7 +711,10 @@ fn fill_triangle(
         // The common case of a triangle around one pixel centre: one test.
         if (e_row[0] | e_row[1] | e_row[2]) >= 0 {
             let [a, b, k] = plane();
-            let w = a * px0 as f32 + b * py0 as f32 + k;
+            // Summed in the order of the loop below, so a pixel's depth does
+            // not depend on which path drew it (clipping to a band can turn
+            // a larger triangle into a one-pixel one).
+            let w = a * px0 as f32 + (b * py0 as f32 + k);
             let at = (py0 as usize - row0) * view.width + px0 as usize;
             if w > zbuf[at] {
                 zbuf[at] = w;
