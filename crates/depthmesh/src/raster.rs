@@ -14,10 +14,13 @@
 //!   render to float precision.
 //! * **Near-plane clipping** in camera space; polygons that reach far outside the
 //!   image are clipped to a guard band in screen space (those cuts lie off-image).
-//! * **Parallel over image bands.** A binning pass (parallel over triangle chunks)
-//!   files each triangle under the horizontal bands it overlaps; bands are then
-//!   rasterized independently. Scratch buffers live in [`Rasterizer`] and are
-//!   reused from frame to frame.
+//! * **Parallel over triangle chunks, then image bands.** A binning pass
+//!   (parallel over triangle chunks) draws each small triangle at once into a
+//!   per-thread layer of depth keys, and files the others (tall, near-clipped or
+//!   far-reaching) under the horizontal bands they overlap; bands are then
+//!   rasterized independently and the layers merged by `max`. Keys order by
+//!   depth, then id, so the result does not depend on the drawing order.
+//!   Scratch buffers live in [`Rasterizer`] and are reused from frame to frame.
 
 use crate::camera::{Intrinsics, Pose};
 use crate::image::DepthImage;
@@ -29,7 +32,8 @@ use std::sync::{Mutex, PoisonError};
 /// Triangle id of pixels that no triangle covers.
 pub const NO_TRIANGLE: u32 = u32::MAX;
 
-/// Rows per band of the parallel raster pass.
+/// Rows per band of the parallel raster pass; triangles spanning at most
+/// this many rows are drawn during binning instead.
 const BAND_ROWS: usize = 16;
 /// Triangles per chunk of the parallel binning pass.
 const CHUNK_TRIANGLES: usize = 1 << 13;
@@ -76,7 +80,8 @@ pub struct Rasterizer {
     snapped: Vec<[i32; 2]>,
     /// Per-pixel depth keys (see [`depth_key`]), one layer per worker thread:
     /// small triangles are drawn into the layer of the thread that bins them,
-    /// and the layers are merged by `max` at the end.
+    /// and the layers are merged by `max` at the end (8 bytes a pixel a
+    /// thread: cheaper than re-reading every small triangle per band).
     layers: Vec<Mutex<Vec<u64>>>,
     /// Whether every layer holds only zero keys, as the merge leaves them.
     layers_clear: bool,
