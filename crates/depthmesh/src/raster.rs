@@ -14,21 +14,26 @@
 //!   render to float precision.
 //! * **Near-plane clipping** in camera space; polygons that reach far outside the
 //!   image are clipped to a guard band in screen space (those cuts lie off-image).
-//! * **Parallel over image bands.** A binning pass (parallel over triangle chunks)
-//!   files each triangle under the horizontal bands it overlaps; bands are then
-//!   rasterized independently. Scratch buffers live in [`Rasterizer`] and are
-//!   reused from frame to frame.
+//! * **Parallel over triangle chunks, then image bands.** A binning pass
+//!   (parallel over triangle chunks) draws each small triangle at once into a
+//!   per-thread layer of depth keys, and files the others (tall, near-clipped or
+//!   far-reaching) under the horizontal bands they overlap; bands are then
+//!   rasterized independently and the layers merged by `max`. Keys order by
+//!   depth, then id, so the result does not depend on the drawing order.
+//!   Scratch buffers live in [`Rasterizer`] and are reused from frame to frame.
 
 use crate::camera::{Intrinsics, Pose};
 use crate::image::DepthImage;
 use crate::mesh::Aabb;
 use glam::Vec3;
 use rayon::prelude::*;
+use std::sync::{Mutex, PoisonError};
 
 /// Triangle id of pixels that no triangle covers.
 pub const NO_TRIANGLE: u32 = u32::MAX;
 
-/// Rows per band of the parallel raster pass.
+/// Rows per band of the parallel raster pass; triangles spanning at most
+/// this many rows are drawn during binning instead.
 const BAND_ROWS: usize = 16;
 /// Triangles per chunk of the parallel binning pass.
 const CHUNK_TRIANGLES: usize = 1 << 13;
@@ -49,37 +54,45 @@ pub struct RenderTarget {
     pub depth: DepthImage,
     /// Index of the visible triangle, or [`NO_TRIANGLE`].
     pub triangle: Vec<u32>,
-    /// Working z-buffer of inverse depths (larger is nearer).
-    inverse_depth: Vec<f32>,
 }
 
 impl RenderTarget {
-    fn reset(&mut self, width: u32, height: u32) {
+    /// Sizes the buffers for an image; their contents are left to the
+    /// render, which writes every pixel.
+    fn resize(&mut self, width: u32, height: u32) {
         let n = width as usize * height as usize;
-        self.depth.reset(width, height);
-        self.triangle.clear();
+        self.depth.width = width;
+        self.depth.height = height;
+        self.depth.data.resize(n, 0.0);
         self.triangle.resize(n, NO_TRIANGLE);
-        self.inverse_depth.clear();
-        self.inverse_depth.resize(n, 0.0);
     }
 }
 
 /// A reusable rasterizer; keep one per view so its buffers are reused.
 #[derive(Debug, Default)]
 pub struct Rasterizer {
-    /// Camera-space vertex positions of the current render.
-    camera_points: Vec<Vec3>,
     /// Per vertex: pixel coordinates and inverse depth, or a non-positive
     /// inverse depth when the vertex is nearer than the near plane.
     screen_points: Vec<[f32; 3]>,
-    /// Triangle ids per (chunk, band), flattened chunk-major.
+    /// Per vertex: its pixel coordinates snapped to fixed point, or
+    /// [`OFF_GRID`] when it is behind the near plane or beyond the guard
+    /// band; snapping once per vertex rather than per triangle corner.
+    snapped: Vec<[i32; 2]>,
+    /// Per-pixel depth keys (see [`depth_key`]), one layer per worker thread:
+    /// small triangles are drawn into the layer of the thread that bins them,
+    /// and the layers are merged by `max` at the end (8 bytes a pixel a
+    /// thread: cheaper than re-reading every small triangle per band).
+    layers: Vec<Mutex<Vec<u64>>>,
+    /// Whether every layer holds only zero keys, as the merge leaves them.
+    layers_clear: bool,
+    /// Ids of the triangles left to the band pass, per (chunk, band),
+    /// flattened chunk-major.
     bins: Vec<Vec<u32>>,
     /// Per chunk of triangles: whether it may be in view.
     chunk_visible: Vec<bool>,
     /// Per block of vertices: whether a chunk in view uses it.
     vertex_block_needed: Vec<bool>,
 }
-
 /// View parameters shared by the passes of one render.
 #[derive(Clone, Copy)]
 struct View {
@@ -130,6 +143,56 @@ impl View {
     fn project(&self, p: Vec3) -> (f32, f32) {
         let inv = 1.0 / p.z;
         (self.fx * p.x * inv + self.cx, self.fy * p.y * inv + self.cy)
+    }
+}
+
+/// The vertices of one render, in the forms the passes need.
+#[derive(Clone, Copy)]
+struct Vertices<'a> {
+    view: View,
+    world_to_camera: Pose,
+    positions: &'a [Vec3],
+    screen: &'a [[f32; 3]],
+    snapped: &'a [[i32; 2]],
+}
+
+impl Vertices<'_> {
+    /// The snapped corners of a triangle, unless one of them is off the grid.
+    #[inline]
+    fn on_grid(&self, t: &[u32; 3]) -> Option<[[i64; 2]; 3]> {
+        let q = t.map(|v| self.snapped[v as usize]);
+        q.iter()
+            .all(|p| *p != OFF_GRID)
+            .then(|| q.map(|p| p.map(i64::from)))
+    }
+
+    /// The camera-space corners of a triangle.
+    fn camera(&self, t: &[u32; 3]) -> [Vec3; 3] {
+        t.map(|v| {
+            self.world_to_camera
+                .transform_point(self.positions[v as usize])
+        })
+    }
+
+    /// Draws a triangle into rows `row0..=row1` (`keys` holds those rows).
+    fn draw(&self, t: &[u32; 3], id: u32, row0: usize, row1: usize, keys: &mut [u64]) {
+        let screen = t.map(|v| self.screen[v as usize]);
+        if let Some(q) = self.on_grid(t) {
+            // The plane is fitted lazily: most small triangles cover no pixel centre.
+            fill_triangle(
+                &self.view,
+                q,
+                || screen_plane(&screen),
+                id,
+                row0,
+                row1,
+                keys,
+            );
+        } else if in_front(&screen) {
+            draw_guarded(&self.view, &screen, id, row0, row1, keys);
+        } else {
+            draw_clipped(&self.view, &self.camera(t), id, row0, row1, keys);
+        }
     }
 }
 
@@ -207,7 +270,7 @@ impl Rasterizer {
             cy: intrinsics.cy,
             near: near.max(1e-6),
         };
-        target.reset(intrinsics.width, intrinsics.height);
+        target.resize(intrinsics.width, intrinsics.height);
         if view.width == 0 || view.height == 0 {
             return false;
         }
@@ -239,26 +302,37 @@ impl Rasterizer {
             }
         }
 
-        self.camera_points.resize(positions.len(), Vec3::ZERO);
+        // Camera-space points are not kept: only the few triangles that
+        // cross the near plane need them, and they recompute them.
         self.screen_points.resize(positions.len(), [0.0; 3]);
-        self.camera_points
+        self.snapped.resize(positions.len(), OFF_GRID);
+        self.screen_points
             .par_chunks_mut(VERTEX_BLOCK)
-            .zip(self.screen_points.par_chunks_mut(VERTEX_BLOCK))
+            .zip(self.snapped.par_chunks_mut(VERTEX_BLOCK))
             .zip(positions.par_chunks(VERTEX_BLOCK))
             .zip(self.vertex_block_needed.par_iter())
             .filter(|(_, needed)| **needed)
-            .for_each(|(((cam, screen), inp), _)| {
-                for ((c, s), &p) in cam.iter_mut().zip(screen.iter_mut()).zip(inp) {
-                    *c = world_to_camera.transform_point(p);
-                    *s = if c.z >= view.near {
-                        let (u, v) = view.project(*c);
-                        [u, v, 1.0 / c.z]
+            .for_each(|(((screen, snapped), inp), _)| {
+                for ((s, q), &p) in screen.iter_mut().zip(snapped).zip(inp) {
+                    let c = world_to_camera.transform_point(p);
+                    (*s, *q) = if c.z >= view.near {
+                        let (u, v) = view.project(c);
+                        let q = if within_guard_band(u, v) {
+                            // Within ±2^21 (see `snap`), so no bits are lost.
+                            snap(&[u, v]).map(|x| x as i32)
+                        } else {
+                            OFF_GRID
+                        };
+                        ([u, v, 1.0 / c.z], q)
                     } else {
-                        [0.0, 0.0, -1.0]
+                        ([0.0, 0.0, -1.0], OFF_GRID)
                     };
                 }
             });
 
+        let visible_chunks = self.chunk_visible.iter().filter(|&&v| v).count();
+        let layer_count = rayon::current_num_threads().min(visible_chunks).max(1);
+        self.prepare_layers(layer_count, view.width * view.height);
         let bands = view.height.div_ceil(BAND_ROWS);
         if self.bins.len() < chunks * bands {
             self.bins.resize_with(chunks * bands, Vec::new);
@@ -268,9 +342,18 @@ impl Rasterizer {
             None => (0..chunks).map(|_| None).collect(),
         };
         states.resize_with(chunks, || None);
-        let camera_points = &self.camera_points;
-        let screen_points = &self.screen_points;
+        let vertices = Vertices {
+            view,
+            world_to_camera,
+            positions,
+            screen: &self.screen_points,
+            snapped: &self.snapped,
+        };
         let chunk_visible = &self.chunk_visible;
+        let layers = &self.layers[..layer_count];
+        // Binning pass: small triangles (nearly all of a mesh made from depth
+        // images) are drawn at once, while their corners are at hand; the
+        // others are filed under the bands they overlap.
         let any = self.bins[..chunks * bands]
             .par_chunks_mut(bands)
             .zip(triangles.par_chunks(CHUNK_TRIANGLES))
@@ -281,21 +364,33 @@ impl Rasterizer {
                 if !chunk_visible[chunk] {
                     return false;
                 }
+                // Each worker thread has a layer of its own, so the lock is
+                // only ever taken uncontended (once per chunk).
+                let slot = rayon::current_thread_index().unwrap_or(0) % layers.len();
+                let mut keys = layers[slot].lock().unwrap_or_else(PoisonError::into_inner);
                 let first = (chunk * CHUNK_TRIANGLES) as u32;
                 let mut any = false;
                 for (i, t) in tris.iter().enumerate() {
-                    let screen = t.map(|v| screen_points[v as usize]);
+                    let id = first + i as u32;
+                    let screen = t.map(|v| vertices.screen[v as usize]);
                     if let Some(state) = state.as_deref_mut() {
                         any |= visit(&mut state[i], &screen);
                     }
-                    let span = if screen[0][2] > 0.0 && screen[1][2] > 0.0 && screen[2][2] > 0.0 {
+                    if let Some(q) = vertices.on_grid(t) {
+                        if row_count(&q) <= BAND_ROWS as i64 {
+                            let plane = || screen_plane(&screen);
+                            fill_triangle(&view, q, plane, id, 0, view.height - 1, &mut keys);
+                            continue;
+                        }
+                    }
+                    let span = if in_front(&screen) {
                         pixel_span(&view, &screen)
                     } else {
-                        clipped_row_span(&view, &t.map(|v| camera_points[v as usize]))
+                        clipped_row_span(&view, &vertices.camera(t))
                     };
                     if let Some((r0, r1)) = span {
                         for bin in &mut bins[r0 / BAND_ROWS..=r1 / BAND_ROWS] {
-                            bin.push(first + i as u32);
+                            bin.push(id);
                         }
                     }
                 }
@@ -303,44 +398,73 @@ impl Rasterizer {
             })
             .reduce(|| false, |a, b| a || b);
 
+        // Band pass: the binned triangles, into the first layer, band by band.
         let bins = &self.bins[..chunks * bands];
+        let (base, others) = self.layers[..layer_count]
+            .split_first_mut()
+            .expect("at least one layer");
+        let base = base.get_mut().unwrap_or_else(PoisonError::into_inner);
         let rows = BAND_ROWS * view.width;
-        target
-            .inverse_depth
-            .par_chunks_mut(rows)
-            .zip(target.triangle.par_chunks_mut(rows))
+        base.par_chunks_mut(rows)
             .enumerate()
-            .for_each(|(band, (zbuf, ids))| {
+            .for_each(|(band, keys)| {
                 let row0 = band * BAND_ROWS;
                 let row1 = (row0 + BAND_ROWS).min(view.height) - 1;
                 for chunk in 0..chunks {
                     for &t in &bins[chunk * bands + band] {
-                        let tri = triangles[t as usize];
-                        let screen = tri.map(|v| screen_points[v as usize]);
-                        if screen[0][2] > 0.0 && screen[1][2] > 0.0 && screen[2][2] > 0.0 {
-                            draw_projected(&view, &screen, t, row0, row1, zbuf, ids);
-                        } else {
-                            draw_clipped(
-                                &view,
-                                &tri.map(|v| camera_points[v as usize]),
-                                t,
-                                row0,
-                                row1,
-                                zbuf,
-                                ids,
-                            );
-                        }
+                        vertices.draw(&triangles[t as usize], t, row0, row1, keys);
                     }
                 }
             });
 
+        // Merge the layers into the first, clearing them for the next render,
+        // then decode the keys.
+        for layer in others {
+            let layer = layer.get_mut().unwrap_or_else(PoisonError::into_inner);
+            base.par_chunks_mut(rows)
+                .zip(layer.par_chunks_mut(rows))
+                .for_each(|(into, from)| {
+                    for (a, b) in into.iter_mut().zip(from) {
+                        *a = (*a).max(*b);
+                        *b = 0;
+                    }
+                });
+        }
         target
             .depth
             .data
-            .par_iter_mut()
-            .zip(target.inverse_depth.par_iter())
-            .for_each(|(d, &w)| *d = if w > 0.0 { 1.0 / w } else { 0.0 });
+            .par_chunks_mut(rows)
+            .zip(target.triangle.par_chunks_mut(rows))
+            .zip(base.par_chunks_mut(rows))
+            .for_each(|((depth, ids), keys)| {
+                for ((d, t), k) in depth.iter_mut().zip(ids).zip(keys) {
+                    let w = f32::from_bits((*k >> 32) as u32);
+                    (*d, *t) = if w > 0.0 {
+                        (1.0 / w, !(*k as u32))
+                    } else {
+                        (0.0, NO_TRIANGLE)
+                    };
+                    *k = 0;
+                }
+            });
+        self.layers_clear = true;
         any
+    }
+
+    /// Makes the first `count` layers hold `pixels` zero keys. The merge
+    /// leaves layers cleared, so this normally only checks sizes.
+    fn prepare_layers(&mut self, count: usize, pixels: usize) {
+        if self.layers.len() < count {
+            self.layers.resize_with(count, Default::default);
+        }
+        let clear = std::mem::take(&mut self.layers_clear);
+        for layer in &mut self.layers {
+            let layer = layer.get_mut().unwrap_or_else(PoisonError::into_inner);
+            if !clear || layer.len() != pixels {
+                layer.clear();
+                layer.resize(pixels, 0);
+            }
+        }
     }
 }
 
@@ -527,64 +651,63 @@ fn clip_guard(view: &View, poly: &Polygon) -> Polygon {
     cur
 }
 
-/// Rasterizes a triangle whose vertices are all in front of the near plane
-/// (pixel coordinates and inverse depths given) into rows `row0..=row1`.
+/// Whether all corners of a projected triangle are in front of the near plane.
 #[inline]
-fn draw_projected(
+fn in_front(s: &[[f32; 3]; 3]) -> bool {
+    s[0][2] > 0.0 && s[1][2] > 0.0 && s[2][2] > 0.0
+}
+
+/// Whether a projected point is near enough to the image that triangles
+/// with all corners like it are snapped and drawn without clipping to the
+/// guard band.
+#[inline]
+fn within_guard_band(u: f32, v: f32) -> bool {
+    u.abs() <= GUARD_BAND * 2.0 && v.abs() <= GUARD_BAND * 2.0
+}
+
+/// The inverse-depth plane `w = a·u + b·v + k` of a projected triangle
+/// (inverse depth is affine in pixel coordinates).
+#[inline]
+fn screen_plane(s: &[[f32; 3]; 3]) -> [f32; 3] {
+    let (du1, dv1, dw1) = (s[1][0] - s[0][0], s[1][1] - s[0][1], s[1][2] - s[0][2]);
+    let (du2, dv2, dw2) = (s[2][0] - s[0][0], s[2][1] - s[0][1], s[2][2] - s[0][2]);
+    let area = du1 * dv2 - du2 * dv1;
+    let (a, b) = if area != 0.0 {
+        (
+            (dw1 * dv2 - dw2 * dv1) / area,
+            (du1 * dw2 - du2 * dw1) / area,
+        )
+    } else {
+        (0.0, 0.0)
+    };
+    [a, b, s[0][2] - a * s[0][0] - b * s[0][1]]
+}
+
+/// Rasterizes a triangle whose vertices are all in front of the near plane
+/// but not all within the guard band, clipping it to the band.
+fn draw_guarded(
     view: &View,
     s: &[[f32; 3]; 3],
     id: u32,
     row0: usize,
     row1: usize,
-    zbuf: &mut [f32],
-    ids: &mut [u32],
+    keys: &mut [u64],
 ) {
-    // Inverse depth is affine in pixel coordinates: fit its plane to the
-    // corners, lazily, since most small triangles cover no pixel centre.
-    let plane = || {
-        let (du1, dv1, dw1) = (s[1][0] - s[0][0], s[1][1] - s[0][1], s[1][2] - s[0][2]);
-        let (du2, dv2, dw2) = (s[2][0] - s[0][0], s[2][1] - s[0][1], s[2][2] - s[0][2]);
-        let area = du1 * dv2 - du2 * dv1;
-        let (a, b) = if area != 0.0 {
-            (
-                (dw1 * dv2 - dw2 * dv1) / area,
-                (du1 * dw2 - du2 * dw1) / area,
-            )
-        } else {
-            (0.0, 0.0)
-        };
-        [a, b, s[0][2] - a * s[0][0] - b * s[0][1]]
+    let mut poly = Polygon {
+        n: 3,
+        p: [[0.0; 2]; 8],
     };
-    if s.iter()
-        .any(|p| p[0].abs() > GUARD_BAND * 2.0 || p[1].abs() > GUARD_BAND * 2.0)
-    {
-        let mut poly = Polygon {
-            n: 3,
-            p: [[0.0; 2]; 8],
-        };
-        for (dst, p) in poly.p.iter_mut().zip(s) {
-            *dst = [p[0], p[1]];
-        }
-        poly = clip_guard(view, &poly);
-        if poly.n >= 3 {
-            fill_polygon(view, &poly, plane(), id, row0, row1, zbuf, ids);
-        }
-        return;
+    for (dst, p) in poly.p.iter_mut().zip(s) {
+        *dst = [p[0], p[1]];
     }
-    let q = s.map(|p| snap(&[p[0], p[1]]));
-    fill_triangle(view, q, plane, id, row0, row1, zbuf, ids);
+    poly = clip_guard(view, &poly);
+    if poly.n >= 3 {
+        fill_polygon(view, &poly, screen_plane(s), id, row0, row1, keys);
+    }
 }
 
 /// Rasterizes a triangle that crosses the near plane (camera-space corners).
-fn draw_clipped(
-    view: &View,
-    c: &[Vec3; 3],
-    id: u32,
-    row0: usize,
-    row1: usize,
-    zbuf: &mut [f32],
-    ids: &mut [u32],
-) {
+fn draw_clipped(view: &View, c: &[Vec3; 3], id: u32, row0: usize, row1: usize, keys: &mut [u64]) {
     // The clipped corners' depths are all `near`, so the plane comes from the
     // camera-space triangle: n·X = d gives 1/z = (n·ray(u, v)) / d.
     let n = (c[1] - c[0]).cross(c[2] - c[0]);
@@ -607,7 +730,7 @@ fn draw_clipped(
             return;
         }
     }
-    fill_polygon(view, &poly, [a, b, k], id, row0, row1, zbuf, ids);
+    fill_polygon(view, &poly, [a, b, k], id, row0, row1, keys);
 }
 
 /// Fills a convex polygon with the inverse-depth plane `w = a·u + b·v + k`,
@@ -622,26 +745,41 @@ fn fill_polygon(
     id: u32,
     row0: usize,
     row1: usize,
-    zbuf: &mut [f32],
-    ids: &mut [u32],
+    keys: &mut [u64],
 ) {
     let first = snap(&poly.p[0]);
     let mut prev = snap(&poly.p[1]);
     for p in &poly.p[2..poly.n] {
         let next = snap(p);
-        fill_triangle(
-            view,
-            [first, prev, next],
-            || plane,
-            id,
-            row0,
-            row1,
-            zbuf,
-            ids,
-        );
+        fill_triangle(view, [first, prev, next], || plane, id, row0, row1, keys);
         prev = next;
     }
 }
+
+/// A pixel's depth-test key: the inverse depth's bits above the complement
+/// of the triangle id. Positive floats order like their bits, so the largest
+/// key is the nearest triangle and, among equally near ones, the lowest id:
+/// the winner of drawing in id order with a strict test, but independent of
+/// the drawing order, which lets threads draw into layers merged by `max`.
+/// Non-positive (or NaN) inverse depths get the key of an empty pixel's depth.
+#[inline]
+fn depth_key(w: f32, id: u32) -> u64 {
+    let bits = if w > 0.0 { w.to_bits() } else { 0 };
+    (u64::from(bits) << 32) | u64::from(!id)
+}
+
+/// How many rows of pixel centres the box of a snapped triangle spans (not
+/// clipped to the image; zero or less when it spans none).
+#[inline]
+fn row_count(q: &[[i64; 2]; 3]) -> i64 {
+    let y0 = q[0][1].min(q[1][1]).min(q[2][1]);
+    let y1 = q[0][1].max(q[1][1]).max(q[2][1]);
+    let one = 1i64 << SUBPIXEL_BITS;
+    (y1 >> SUBPIXEL_BITS) - ((y0 + one - 1) >> SUBPIXEL_BITS) + 1
+}
+
+/// [`Rasterizer::snapped`] of a vertex that is not on the fixed-point grid.
+const OFF_GRID: [i32; 2] = [i32::MIN; 2];
 
 /// A vertex snapped to fixed point (about 1/256 pixel). Any deterministic
 /// rounding keeps coverage exact, since shared vertices snap alike; this one
@@ -664,8 +802,7 @@ fn fill_triangle(
     id: u32,
     row0: usize,
     row1: usize,
-    zbuf: &mut [f32],
-    ids: &mut [u32],
+    keys: &mut [u64],
 ) {
     let x0 = q[0][0].min(q[1][0]).min(q[2][0]);
     let x1 = q[0][0].max(q[1][0]).max(q[2][0]);
@@ -711,12 +848,12 @@ fn fill_triangle(
         // The common case of a triangle around one pixel centre: one test.
         if (e_row[0] | e_row[1] | e_row[2]) >= 0 {
             let [a, b, k] = plane();
-            let w = a * px0 as f32 + b * py0 as f32 + k;
+            // Summed in the order of the loop below, so a pixel's depth does
+            // not depend on which path drew it (clipping to a band can turn
+            // a larger triangle into a one-pixel one).
+            let w = a * px0 as f32 + (b * py0 as f32 + k);
             let at = (py0 as usize - row0) * view.width + px0 as usize;
-            if w > zbuf[at] {
-                zbuf[at] = w;
-                ids[at] = id;
-            }
+            keys[at] = keys[at].max(depth_key(w, id));
         }
         return;
     }
@@ -729,10 +866,7 @@ fn fill_triangle(
             if (e[0] | e[1] | e[2]) >= 0 {
                 let w = a * px as f32 + wy;
                 let at = row + px as usize;
-                if w > zbuf[at] {
-                    zbuf[at] = w;
-                    ids[at] = id;
-                }
+                keys[at] = keys[at].max(depth_key(w, id));
             }
             e[0] += step_x[0];
             e[1] += step_x[1];
@@ -957,5 +1091,79 @@ mod tests {
         let at = 30 * 64 + 30;
         assert_eq!(r.triangle[at], ring);
         assert!((r.depth.data[at] - 1.0).abs() < 1e-5);
+    }
+
+    /// A grid mesh of a tilted plane made like MABDI's: vertices on the pixel
+    /// centres of a `w × h` image seen from `pose`, two triangles per quad.
+    fn depth_image_grid(
+        k: &Intrinsics,
+        pose: &Pose,
+        n: Vec3,
+        d: f32,
+    ) -> (Vec<Vec3>, Vec<[u32; 3]>) {
+        let (w, h) = (k.width, k.height);
+        let mut positions = Vec::new();
+        for v in 0..h {
+            for u in 0..w {
+                let z = plane_depth(k, pose, n, d, u as f32, v as f32).expect("plane in view");
+                positions.push(pose.transform_point(k.back_project(u as f32, v as f32, z)));
+            }
+        }
+        let mut triangles = Vec::new();
+        for v in 0..h - 1 {
+            for u in 0..w - 1 {
+                let i = v * w + u;
+                triangles.push([i, i + 1, i + w]);
+                triangles.push([i + 1, i + w + 1, i + w]);
+            }
+        }
+        (positions, triangles)
+    }
+
+    #[test]
+    fn pixel_sized_triangles_leave_no_cracks_and_ties_go_to_the_lowest_id() {
+        // Pixel-sized triangles in several chunks (drawn while binning, into
+        // per-thread layers), seen from the pose they were made from and
+        // from a nearby one.
+        let k = Intrinsics::from_vertical_fov(160, 120, 60.0);
+        let made_from = Pose::look_at(Vec3::new(0.2, 0.4, -2.0), Vec3::ZERO, Vec3::Y);
+        let n = Vec3::new(0.1, 0.3, -1.0).normalize();
+        let (mut positions, mut triangles) = depth_image_grid(&k, &made_from, n, 0.1);
+        assert!(triangles.len() > 4 * CHUNK_TRIANGLES);
+        // A second copy of the surface after the first: equally near
+        // everywhere, so the first copy's (lower) ids must win every pixel.
+        let copy = triangles.len() as u32;
+        let offset = positions.len() as u32;
+        positions.extend_from_slice(&positions.clone());
+        triangles.extend(triangles.clone().iter().map(|t| t.map(|v| v + offset)));
+        let moved = Pose::look_at(
+            Vec3::new(0.25, 0.35, -1.9),
+            Vec3::new(0.0, 0.02, 0.0),
+            Vec3::Y,
+        );
+        for pose in [made_from, moved] {
+            let r = render(&positions, &triangles, &k, &pose);
+            let mut checked = 0;
+            for v in 0..k.height {
+                for u in 0..k.width {
+                    let z = plane_depth(&k, &pose, n, 0.1, u as f32, v as f32).unwrap();
+                    let world = pose.transform_point(k.back_project(u as f32, v as f32, z));
+                    // Only pixels well inside the grid's image.
+                    let Some(p) = k.project(made_from.inverse().transform_point(world)) else {
+                        continue;
+                    };
+                    if !(1.0..k.width as f32 - 2.0).contains(&p.x)
+                        || !(1.0..k.height as f32 - 2.0).contains(&p.y)
+                    {
+                        continue;
+                    }
+                    let at = (v * k.width + u) as usize;
+                    assert!(r.triangle[at] < copy, "crack or copy at ({u},{v})");
+                    assert!((r.depth.data[at] - z).abs() < 1e-4, "({u},{v})");
+                    checked += 1;
+                }
+            }
+            assert!(checked > 10_000, "{checked}");
+        }
     }
 }

@@ -35,6 +35,8 @@ pub struct Carver {
     /// Per pixel: the depth and its neighbourhood minimum (0 = not usable),
     /// side by side so a lookup touches one cache line.
     depths: Vec<[f32; 2]>,
+    /// Scratch: per pixel, the minimum of it and its row neighbours.
+    row_minima: Vec<f32>,
 }
 
 /// The evidence one depth image gives about triangles, ready to be asked
@@ -63,23 +65,36 @@ impl Carver {
         self.depths.clear();
         self.depths.resize(w * h, [0.0; 2]);
         if w >= 3 && h >= 3 {
+            // The 3×3 minimum is separable: minima of three along rows, then
+            // of three of those down columns. An invalid depth counts as 0,
+            // so a minimum is positive exactly when all nine are valid.
+            let valid = |d: f32| if d > 0.0 { d } else { 0.0 };
+            self.row_minima.resize(w * h, 0.0);
+            self.row_minima
+                .par_chunks_mut(w)
+                .zip(depth.data.par_chunks(w))
+                .for_each(|(out, row)| {
+                    for (o, d) in out[1..w - 1].iter_mut().zip(row.windows(3)) {
+                        *o = valid(d[0]).min(valid(d[1])).min(valid(d[2]));
+                    }
+                });
+            let row_minima = &self.row_minima;
             self.depths
                 .par_chunks_mut(w)
+                .zip(depth.data.par_chunks(w))
                 .enumerate()
-                .for_each(|(r, row)| {
-                    for (c, out) in row.iter_mut().enumerate() {
-                        out[0] = depth.data[r * w + c];
-                        if r == 0 || c == 0 || r == h - 1 || c == w - 1 {
-                            continue;
-                        }
-                        let (mut m, mut valid) = (f32::INFINITY, true);
-                        for rr in r - 1..=r + 1 {
-                            for d in &depth.data[rr * w + c - 1..=rr * w + c + 1] {
-                                valid &= *d > 0.0;
-                                m = m.min(*d);
-                            }
-                        }
-                        out[1] = if valid { m } else { 0.0 };
+                .for_each(|(r, (out, row))| {
+                    for (o, &d) in out.iter_mut().zip(row) {
+                        o[0] = d;
+                    }
+                    if r == 0 || r == h - 1 {
+                        return;
+                    }
+                    let above = &row_minima[(r - 1) * w..r * w];
+                    let here = &row_minima[r * w..(r + 1) * w];
+                    let below = &row_minima[(r + 1) * w..(r + 2) * w];
+                    for (c, o) in out.iter_mut().enumerate().take(w - 1).skip(1) {
+                        o[1] = above[c].min(here[c]).min(below[c]);
                     }
                 });
         }
@@ -115,7 +130,9 @@ impl Evidence<'_> {
         if !(u >= 0.0 && v >= 0.0 && u < w as f32 && v < h as f32) {
             return *vote >= self.frames_to_remove;
         }
-        let [d, beyond] = self.depths[v as usize * w + u as usize];
+        // In range, so converting through `i32` floors like `as usize` would,
+        // for a fraction of the instructions of a saturating float-to-usize.
+        let [d, beyond] = self.depths[v as i32 as usize * w + u as i32 as usize];
         if d <= 0.0 {
             return *vote >= self.frames_to_remove;
         }
@@ -123,7 +140,7 @@ impl Evidence<'_> {
         let tol = self.threshold.at(z);
         if beyond > 0.0 && z < beyond - tol {
             *vote = vote.saturating_add(1);
-        } else if d > 0.0 && (d - z).abs() <= tol {
+        } else if (d - z).abs() <= tol {
             *vote = 0;
         }
         *vote >= self.frames_to_remove
@@ -195,5 +212,38 @@ mod tests {
             &[[2.0, 2.0, -1.0], [2.2, 2.0, -1.0], [2.0, 2.2, -1.0]]
         ));
         assert_eq!(v, 0);
+    }
+
+    #[test]
+    fn neighbourhood_minimum_needs_all_nine_valid() {
+        let (w, h) = (7usize, 5usize);
+        let mut depth = DepthImage::new(w as u32, h as u32);
+        for (i, d) in depth.data.iter_mut().enumerate() {
+            *d = 1.0 + ((i * 37) % 11) as f32 * 0.1;
+        }
+        depth.data[3 * w + 5] = 0.0;
+        depth.data[w + 1] = f32::NAN;
+        let mut carver = Carver::default();
+        let (_, evidence) = carver.prepare(&depth, 0, Threshold::Metres(0.01), 2);
+        for r in 0..h {
+            for c in 0..w {
+                let [d, beyond] = evidence.depths[r * w + c];
+                assert_eq!(d.to_bits(), depth.data[r * w + c].to_bits());
+                let border = r == 0 || c == 0 || r == h - 1 || c == w - 1;
+                let nine: Vec<f32> = if border {
+                    Vec::new()
+                } else {
+                    (r - 1..=r + 1)
+                        .flat_map(|rr| depth.data[rr * w + c - 1..=rr * w + c + 1].to_vec())
+                        .collect()
+                };
+                let want = if border || !nine.iter().all(|&d| d > 0.0) {
+                    0.0
+                } else {
+                    nine.iter().copied().fold(f32::INFINITY, f32::min)
+                };
+                assert_eq!(beyond, want, "({c},{r})");
+            }
+        }
     }
 }
