@@ -91,7 +91,7 @@ fn sphere_is_closed_and_within_half_a_voxel() {
     let config = TsdfConfig::new(0.01);
     let mut volume = TsdfVolume::new(config).unwrap();
     let mut cache = MeshCache::new(1);
-    scan(&sphere_hit(0.25), 16, &mut volume, &mut cache);
+    scan(sphere_hit(0.25), 16, &mut volume, &mut cache);
     let mesh = cache.assemble();
     assert!(mesh.triangle_count() > 5000);
     let error = rms(&mesh, |p| p.length() - 0.25);
@@ -114,7 +114,7 @@ fn box_is_within_half_a_voxel_without_duplicates() {
     let mut volume = TsdfVolume::new(config).unwrap();
     let mut cache = MeshCache::new(1);
     let h = Vec3::new(0.2, 0.15, 0.1);
-    scan(&box_hit(h), 16, &mut volume, &mut cache);
+    scan(box_hit(h), 16, &mut volume, &mut cache);
     let mesh = cache.assemble();
     // Distance to the box surface (inside or outside).
     let distance = |p: Vec3| {
@@ -130,7 +130,7 @@ fn box_is_within_half_a_voxel_without_duplicates() {
 fn incremental_meshing_equals_full_extraction() {
     let mut volume = TsdfVolume::new(TsdfConfig::new(0.02)).unwrap();
     let mut incremental = MeshCache::new(1);
-    scan(&sphere_hit(0.3), 5, &mut volume, &mut incremental);
+    scan(sphere_hit(0.3), 5, &mut volume, &mut incremental);
     let mut full = MeshCache::new(1);
     full.update(&volume);
     assert_eq!(incremental.assemble(), full.assemble());
