@@ -17,6 +17,10 @@ use crate::mesh::Mesh;
 use glam::{IVec3, Vec3};
 use rayon::prelude::*;
 use std::collections::HashMap;
+use std::hash::BuildHasherDefault;
+
+/// A map keyed by block coordinates with the volume's fast hash.
+type KeyMap<V> = HashMap<IVec3, V, BuildHasherDefault<super::KeyHasher>>;
 
 /// A reference to a vertex: the owning block as an offset (bit 0: +x, bit 1:
 /// +y, bit 2: +z from the referring block) and the edge within it.
@@ -41,7 +45,7 @@ struct BlockMesh {
 /// Per-block mesh pieces, kept up to date with a volume.
 #[derive(Debug, Default)]
 pub struct MeshCache {
-    pieces: HashMap<IVec3, BlockMesh>,
+    pieces: KeyMap<BlockMesh>,
     /// Frame of the volume the pieces reflect.
     frame: u32,
     /// Voxels with a smaller weight count as unobserved.
@@ -129,7 +133,7 @@ impl MeshCache {
     /// are treated as never observed.
     pub fn new(min_weight: u16) -> Self {
         MeshCache {
-            pieces: HashMap::new(),
+            pieces: KeyMap::default(),
             frame: 0,
             min_weight: min_weight.max(1),
         }
@@ -167,7 +171,8 @@ impl MeshCache {
     pub fn assemble(&self) -> Mesh {
         let mut keys: Vec<IVec3> = self.pieces.keys().copied().collect();
         keys.sort_unstable_by_key(|k| (k.x, k.y, k.z));
-        let mut offsets: HashMap<IVec3, u32> = HashMap::with_capacity(keys.len());
+        let mut offsets: KeyMap<u32> = KeyMap::default();
+        offsets.reserve(keys.len());
         let mut mesh = Mesh::default();
         for k in &keys {
             let p = &self.pieces[k];
@@ -206,10 +211,23 @@ impl MeshCache {
 /// Meshes the edges and cubes block `key` owns.
 fn mesh_block(volume: &TsdfVolume, key: IVec3, min_weight: u16) -> BlockMesh {
     let n = Neighbourhood::gather(volume, key);
+    let mut out = BlockMesh::default();
+    // Most blocks of the truncation band lie wholly in front of (or behind)
+    // the surface: with no sign change among their observed voxels (and the
+    // layer above them) there is nothing to mesh.
+    let (mut any_inside, mut any_outside) = (false, false);
+    for (&t, &w) in n.tsdf.iter().zip(&n.weight) {
+        if w >= min_weight {
+            any_inside |= t < 0.0;
+            any_outside |= t >= 0.0;
+        }
+    }
+    if !(any_inside && any_outside) {
+        return out;
+    }
     let observed = |v: IVec3| n.weight[Neighbourhood::at(v)] >= min_weight;
     let value = |v: IVec3| n.tsdf[Neighbourhood::at(v)];
     let b = BLOCK as i32;
-    let mut out = BlockMesh::default();
     let voxel = volume.config().voxel;
     // Vertices on the owned edges, in edge-id order.
     for z in 0..b {
