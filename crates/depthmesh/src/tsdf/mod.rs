@@ -343,7 +343,7 @@ fn integrate_block(
     let mut changed = false;
     // A row of voxels at a time: first project all eight (branch-free, so it
     // vectorises), then update those that land on a measurement.
-    let mut pixel = [0u32; BLOCK];
+    let mut pixel = [0i32; BLOCK];
     let mut depth_z = [0.0f32; BLOCK];
     for z in 0..BLOCK {
         for y in 0..BLOCK {
@@ -356,15 +356,13 @@ fn integrate_block(
                 let fu = k.fx * p.x * inv + k.cx + 0.5;
                 let fv = k.fy * p.y * inv + k.cy + 0.5;
                 let inside = p.z > 0.0 && fu >= 0.0 && fv >= 0.0 && fu < w as f32 && fv < h as f32;
-                pixel[x] = if inside {
-                    fv as u32 * w as u32 + fu as u32
-                } else {
-                    u32::MAX
-                };
+                // -1 marks a voxel that projects outside the image.
+                let index = (fv as i32) * w + fu as i32;
+                pixel[x] = if inside { index } else { -1 };
                 depth_z[x] = p.z;
             }
             for x in 0..BLOCK {
-                if pixel[x] == u32::MAX {
+                if pixel[x] < 0 {
                     continue;
                 }
                 let px = pixel[x] as usize;
