@@ -3,7 +3,7 @@
 //!
 //! Per frame: render the expected depth E of the global mesh M from the
 //! sensor's pose ([`crate::raster`]), classify the pixels of D
-//! ([`classify`]), mesh the novel pixels only ([`mesher`]) and append that
+//! ([`classify`](mod@classify)), mesh the novel pixels only ([`mesher`]) and append that
 //! surface S to M, coloured by iteration. Beyond the thesis, triangles the
 //! sensor sees through are removed ([`removal`]). [`NaiveMapper`] is the
 //! thesis's "traditional method" that appends every frame's whole surface.
