@@ -112,12 +112,9 @@ pub fn run(args: &ReconstructArgs, quiet: bool) -> Result<()> {
                 config.truncation = t;
             }
             config.color = args.color;
-            RealMap::Tsdf(Box::new(TsdfMapper::new(
-                config,
-                k,
-                args.depth_min,
-                args.depth_max,
-            )?))
+            let mut mapper = TsdfMapper::new(config, k, args.depth_min, args.depth_max)?;
+            mapper.remesh_every = args.remesh_every;
+            RealMap::Tsdf(Box::new(mapper))
         }
         // The thesis's thresholds are calibrated for a Kinect's 0.8–4 m
         // z-buffer, whatever depth range the dataset is read with.

@@ -136,7 +136,11 @@ impl Dashboard {
                 classified: &classified,
                 plot: &plot,
             },
-            &format!("{} iteration {iteration} / {}", self.map.to_uppercase(), self.poses.len()),
+            &format!(
+                "{} iteration {iteration} / {}",
+                self.map.to_uppercase(),
+                self.poses.len()
+            ),
         );
         let png = image.encode_png();
         let path = self.dir.join(format!("iteration-{iteration:03}.png"));
