@@ -231,3 +231,106 @@ fn a_run_that_fails_while_writing_leaves_no_summary_and_no_temporary_files() {
     assert!(leftovers.is_empty(), "temporary files left: {leftovers:?}");
     std::fs::remove_dir_all(out).unwrap();
 }
+
+/// A 7-Scenes style frames folder of the simulated table, 160×120, 3 frames.
+fn simulated_frames_folder(dir: &Path) {
+    use depthmesh::sim::{NoiseModel, PathSpec, Scene, SceneOptions, SimulatedSensor};
+    let scene = Scene::load(Path::new(TABLE), &SceneOptions::default()).unwrap();
+    let k = depthmesh::Intrinsics::from_vertical_fov(160, 120, 60.0);
+    let mut sensor = SimulatedSensor::new(k, 0.8, 4.0, NoiseModel::None, 0).unwrap();
+    std::fs::write(
+        dir.join("camera-intrinsics.txt"),
+        format!("{} 0 {}\n0 {} {}\n0 0 1\n", k.fx, k.cx, k.fy, k.cy),
+    )
+    .unwrap();
+    for (i, pose) in PathSpec::Helix.build(&scene, 3).unwrap().iter().enumerate() {
+        let frame = sensor.capture(&scene, i as u32 + 1, pose);
+        let mm: Vec<u8> = frame
+            .depth
+            .data
+            .iter()
+            .flat_map(|d| ((d * 1000.0).round() as u16).to_be_bytes())
+            .collect();
+        let file = std::fs::File::create(dir.join(format!("frame-{i:06}.depth.png"))).unwrap();
+        let mut encoder = png::Encoder::new(file, k.width, k.height);
+        encoder.set_color(png::ColorType::Grayscale);
+        encoder.set_depth(png::BitDepth::Sixteen);
+        encoder
+            .write_header()
+            .unwrap()
+            .write_image_data(&mm)
+            .unwrap();
+        let r = pose.rotation;
+        let t = pose.translation;
+        let rows: Vec<String> = (0..3)
+            .map(|row| {
+                format!(
+                    "{} {} {} {}",
+                    r.col(0)[row],
+                    r.col(1)[row],
+                    r.col(2)[row],
+                    t[row]
+                )
+            })
+            .chain(std::iter::once("0 0 0 1".to_string()))
+            .collect();
+        std::fs::write(dir.join(format!("frame-{i:06}.pose.txt")), rows.join("\n")).unwrap();
+    }
+}
+
+#[test]
+fn reconstruct_fuses_a_frames_folder() {
+    let dir = scratch("frames");
+    simulated_frames_folder(&dir);
+    let out = dir.join("out");
+    let args = [
+        "reconstruct",
+        dir.to_str().unwrap(),
+        "--voxel",
+        "0.02",
+        "--remesh-every",
+        "1",
+        "--status-every",
+        "2",
+        "--quiet",
+        "--out",
+        out.to_str().unwrap(),
+    ];
+    let result = depthmesh(&args);
+    assert!(
+        result.status.success(),
+        "{}",
+        String::from_utf8_lossy(&result.stderr)
+    );
+    let summary: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(out.join("summary.json")).unwrap()).unwrap();
+    for key in [
+        "integrate_fps",
+        "mesh_seconds",
+        "blocks",
+        "voxels",
+        "bytes_per_voxel",
+        "triangles",
+    ] {
+        assert!(summary.get(key).is_some(), "summary lacks {key}");
+    }
+    assert_eq!(summary["map"], "tsdf");
+    assert_eq!(summary["bytes_per_voxel"], 4.0);
+    assert!(summary["triangles"].as_u64().unwrap() > 1000);
+    let stats = std::fs::read_to_string(out.join("stats.csv")).unwrap();
+    let header: Vec<&str> = stats.lines().next().unwrap().split(',').collect();
+    let column = header.iter().position(|h| *h == "remeshed_blocks").unwrap();
+    assert!(stats.lines().skip(1).all(|l| l
+        .split(',')
+        .nth(column)
+        .unwrap()
+        .parse::<f64>()
+        .unwrap()
+        > 0.0));
+    assert!(out.join("status/frame-000001.png").is_file());
+    // A frame without its pose is an error naming the file.
+    std::fs::remove_file(dir.join("frame-000001.pose.txt")).unwrap();
+    let again = depthmesh(&args);
+    assert_fails_with(&again, &["frame-000001.pose.txt"]);
+    std::fs::remove_dir_all(dir).unwrap();
+}
