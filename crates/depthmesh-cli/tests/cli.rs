@@ -1,39 +1,12 @@
 //! The command line end to end: the run contract, and clear errors with no
 //! output for bad input.
 
-use std::path::{Path, PathBuf};
-use std::process::{Command, Output};
+use std::path::Path;
 
-fn depthmesh(args: &[&str]) -> Output {
-    Command::new(env!("CARGO_BIN_EXE_depthmesh"))
-        .args(args)
-        .current_dir(env!("CARGO_MANIFEST_DIR"))
-        .output()
-        .expect("the binary runs")
-}
-
-/// A fresh, empty folder for one test.
-fn scratch(name: &str) -> PathBuf {
-    let dir = std::env::temp_dir().join(format!("depthmesh-cli-{}-{name}", std::process::id()));
-    let _ = std::fs::remove_dir_all(&dir);
-    std::fs::create_dir_all(&dir).unwrap();
-    dir
-}
+mod common;
+use common::{assert_fails_with, depthmesh, scratch};
 
 const TABLE: &str = "../../scenes/table.toml";
-
-/// Fails with a message containing every one of `needles`, and no panic.
-fn assert_fails_with(output: &Output, needles: &[&str]) {
-    let stderr = String::from_utf8_lossy(&output.stderr);
-    assert!(
-        !output.status.success(),
-        "expected failure, got success; stderr: {stderr}"
-    );
-    assert!(!stderr.contains("panicked"), "panic: {stderr}");
-    for n in needles {
-        assert!(stderr.contains(n), "stderr lacks {n:?}: {stderr}");
-    }
-}
 
 #[test]
 fn simulate_writes_the_run_contract() {

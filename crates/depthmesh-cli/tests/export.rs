@@ -6,42 +6,9 @@ use depthmesh::mesh::io::{read_mesh, write_mesh};
 use depthmesh::Mesh;
 use glam::Vec3;
 use std::path::{Path, PathBuf};
-use std::process::{Command, Output};
 
-fn depthmesh(args: &[&str]) -> Output {
-    Command::new(env!("CARGO_BIN_EXE_depthmesh"))
-        .args(args)
-        .current_dir(env!("CARGO_MANIFEST_DIR"))
-        .output()
-        .expect("the binary runs")
-}
-
-fn scratch(name: &str) -> PathBuf {
-    let dir = std::env::temp_dir().join(format!("depthmesh-export-{}-{name}", std::process::id()));
-    let _ = std::fs::remove_dir_all(&dir);
-    std::fs::create_dir_all(&dir).unwrap();
-    dir
-}
-
-fn ok(output: &Output) {
-    assert!(
-        output.status.success(),
-        "{}",
-        String::from_utf8_lossy(&output.stderr)
-    );
-}
-
-fn fails_with(output: &Output, needles: &[&str]) {
-    let stderr = String::from_utf8_lossy(&output.stderr);
-    assert!(
-        !output.status.success(),
-        "expected failure; stderr: {stderr}"
-    );
-    assert!(!stderr.contains("panicked"), "panic: {stderr}");
-    for n in needles {
-        assert!(stderr.contains(n), "stderr lacks {n:?}: {stderr}");
-    }
-}
+mod common;
+use common::{assert_fails_with as fails_with, depthmesh, ok, scratch};
 
 /// A wavy `n`×`n` height field of 1 cm cells with colours: a stand-in for a scanned floor.
 fn terrain(n: u32) -> Mesh {
