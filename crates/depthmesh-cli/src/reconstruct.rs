@@ -2,6 +2,7 @@
 
 use crate::draw::canvas::Canvas;
 use crate::draw::colormap::normal_shade;
+use crate::export::RunExportArgs;
 use crate::output::{FrameStats, RunOutput};
 use crate::progress;
 use anyhow::{bail, Context, Result};
@@ -73,10 +74,13 @@ pub struct ReconstructArgs {
     /// Output folder.
     #[arg(long)]
     pub out: PathBuf,
+    #[command(flatten)]
+    pub export: RunExportArgs,
 }
 
 /// Runs `reconstruct`.
 pub fn run(args: &ReconstructArgs, quiet: bool) -> Result<()> {
+    args.export.check()?;
     if args.stride == 0 {
         bail!("--stride must be at least 1");
     }
@@ -196,6 +200,7 @@ pub fn run(args: &ReconstructArgs, quiet: bool) -> Result<()> {
         }
     };
     out.finish(name, &mesh, bytes, summary)?;
+    args.export.write(&mesh, &args.out)?;
     Ok(())
 }
 

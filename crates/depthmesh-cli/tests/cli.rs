@@ -265,6 +265,10 @@ fn reconstruct_fuses_a_frames_folder() {
         "1",
         "--status-every",
         "2",
+        "--export",
+        "glb",
+        "--simplify",
+        "0.5",
         "--quiet",
         "--out",
         out.to_str().unwrap(),
@@ -301,6 +305,8 @@ fn reconstruct_fuses_a_frames_folder() {
         .unwrap()
         > 0.0));
     assert!(out.join("status/frame-000001.png").is_file());
+    let assets = depthmesh::mesh::io::read_mesh(&out.join("mesh.glb")).unwrap();
+    assert!(assets.triangle_count() > 0);
     // A frame without its pose is an error naming the file.
     std::fs::remove_file(dir.join("frame-000001.pose.txt")).unwrap();
     let again = depthmesh(&args);
