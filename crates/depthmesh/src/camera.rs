@@ -40,12 +40,23 @@ impl Intrinsics {
         Self::from_vertical_fov(640, 480, 60.0)
     }
 
-    /// Rejects models that cannot image anything (zero size, non-positive focal length).
+    /// Rejects models that cannot image anything (zero size, non-positive
+    /// focal length) or that are larger than the rasterizer's fixed-point
+    /// range covers (4096 pixels a side).
     pub fn validate(&self) -> Result<()> {
         if self.width == 0 || self.height == 0 {
             return Err(Error::parameter(
                 "intrinsics",
                 format!("image size {}×{} is empty", self.width, self.height),
+            ));
+        }
+        if self.width > 4096 || self.height > 4096 {
+            return Err(Error::parameter(
+                "intrinsics",
+                format!(
+                    "image size {}×{} exceeds 4096 pixels a side",
+                    self.width, self.height
+                ),
             ));
         }
         let finite = [self.fx, self.fy, self.cx, self.cy]
