@@ -14,6 +14,7 @@ pub mod mabdi;
 pub mod map;
 pub mod mesh;
 pub mod palette;
+pub mod planes;
 pub mod raster;
 pub mod sim;
 pub mod trajectory;

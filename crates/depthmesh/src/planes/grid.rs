@@ -1,0 +1,416 @@
+//! The semi-sparse blockwise map of the paper (Sec. C, Fig. 4): a coarse
+//! map of cells (1 m), each occupied cell holding a dense fine grid of voxel
+//! statistics (0.05 m).
+//!
+//! One level of indirection makes a voxel lookup a hash probe plus an index,
+//! and a 2×2×2 neighbourhood touches at most eight cells; memory grows with
+//! the occupied cells only, which suits the clustered points of real scans.
+//! The paper's coarse level is a dense grid of pointers; here it is a hash
+//! map so the map has no fixed extent.
+
+use super::stats::VoxelStats;
+use crate::error::{Error, Result};
+use crate::tsdf::KeyHasher;
+use glam::{IVec3, Vec3};
+use rayon::prelude::*;
+use std::collections::HashMap;
+use std::hash::BuildHasherDefault;
+
+/// Largest fine grid edge in voxels: 256³ voxels of statistics is already
+/// 20 MB per cell.
+const MAX_CELL_VOXELS: usize = 256;
+
+/// Sizes of the two levels.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct PlaneGridConfig {
+    /// Fine voxel edge in metres.
+    pub voxel: f32,
+    /// Coarse cell edge in metres, a whole multiple of `voxel`.
+    pub cell: f32,
+}
+
+impl Default for PlaneGridConfig {
+    /// The paper's 0.05 m voxels in 1 m cells.
+    fn default() -> Self {
+        PlaneGridConfig {
+            voxel: 0.05,
+            cell: 1.0,
+        }
+    }
+}
+
+impl PlaneGridConfig {
+    /// Voxels along a cell's edge, or the reason the sizes are rejected.
+    pub fn cell_voxels(&self) -> Result<usize> {
+        if !(self.voxel.is_finite() && self.voxel > 0.0) {
+            return Err(Error::parameter(
+                "voxel size",
+                format!("must be a positive size in metres, got {}", self.voxel),
+            ));
+        }
+        if !(self.cell.is_finite() && self.cell > 0.0) {
+            return Err(Error::parameter(
+                "cell size",
+                format!("must be a positive size in metres, got {}", self.cell),
+            ));
+        }
+        // In f64 and with a tolerance: 1.0 / 0.05f32 is 19.9999997, not 20.
+        let ratio = f64::from(self.cell) / f64::from(self.voxel);
+        let n = ratio.round();
+        if n < 1.0 || (ratio - n).abs() > 1e-5 * n {
+            return Err(Error::parameter(
+                "cell size",
+                format!(
+                    "must be a whole multiple of the voxel size {} m, got {} m",
+                    self.voxel, self.cell
+                ),
+            ));
+        }
+        if n > MAX_CELL_VOXELS as f64 {
+            return Err(Error::parameter(
+                "cell size",
+                format!(
+                    "{} m holds {n} voxels of {} m per edge, at most {MAX_CELL_VOXELS} are allowed",
+                    self.cell, self.voxel
+                ),
+            ));
+        }
+        Ok(n as usize)
+    }
+}
+
+/// Cell key → index into the cell list.
+type CellIndex = HashMap<IVec3, u32, BuildHasherDefault<KeyHasher>>;
+
+/// A point on its way into the grid: where it goes and where it is.
+#[derive(Clone, Copy)]
+struct Binned {
+    cell: IVec3,
+    local: u32,
+    point: Vec3,
+}
+
+/// Voxel statistics in a semi-sparse blockwise grid.
+///
+/// Voxel `k` (global integer coordinates) covers `[k, k + 1) · voxel`; cell
+/// `c` holds voxels `c · n .. c · n + n` on each axis, `n` =
+/// [`PlaneGrid::cell_voxels`]. Cells are stored in the order they were first
+/// touched, so iteration is deterministic for a given input sequence.
+#[derive(Debug)]
+pub struct PlaneGrid {
+    config: PlaneGridConfig,
+    /// Voxels along a cell's edge.
+    n: i32,
+    index: CellIndex,
+    /// Key of each cell, parallel to `cells`.
+    keys: Vec<IVec3>,
+    /// Each cell's n³ voxels, x fastest.
+    cells: Vec<Box<[VoxelStats]>>,
+}
+
+impl PlaneGrid {
+    /// An empty grid; fails when the sizes are rejected, see
+    /// [`PlaneGridConfig::cell_voxels`].
+    pub fn new(config: PlaneGridConfig) -> Result<Self> {
+        let n = config.cell_voxels()?;
+        Ok(PlaneGrid {
+            config,
+            n: n as i32,
+            index: CellIndex::default(),
+            keys: Vec::new(),
+            cells: Vec::new(),
+        })
+    }
+
+    /// The sizes.
+    pub fn config(&self) -> PlaneGridConfig {
+        self.config
+    }
+
+    /// Voxels along a cell's edge.
+    pub fn cell_voxels(&self) -> usize {
+        self.n as usize
+    }
+
+    /// Number of allocated cells.
+    pub fn cell_count(&self) -> usize {
+        self.cells.len()
+    }
+
+    /// The voxel holding `p`, or `None` for a non-finite point or one so far
+    /// away its voxel coordinates would overflow.
+    pub fn voxel_of(&self, p: Vec3) -> Option<IVec3> {
+        // f64 so a point a rounding error inside a voxel border is binned
+        // the same way in every call.
+        let s = 1.0 / f64::from(self.config.voxel);
+        let v = [p.x, p.y, p.z].map(|c| (f64::from(c) * s).floor());
+        // Headroom below i32::MAX so `cell * n + n` and `corner ± 1` cannot overflow.
+        let limit = f64::from(i32::MAX / 4);
+        if v.iter().all(|c| c.is_finite() && c.abs() < limit) {
+            Some(IVec3::new(v[0] as i32, v[1] as i32, v[2] as i32))
+        } else {
+            None
+        }
+    }
+
+    /// Position of the grid vertex `corner` (the lowest corner of voxel `corner`).
+    pub fn corner_position(&self, corner: IVec3) -> Vec3 {
+        corner.as_vec3() * self.config.voxel
+    }
+
+    /// The cell holding voxel `v` and the voxel's index inside it.
+    #[inline]
+    fn split(&self, v: IVec3) -> (IVec3, usize) {
+        let n = self.n;
+        let cell = IVec3::new(v.x.div_euclid(n), v.y.div_euclid(n), v.z.div_euclid(n));
+        let l = v - cell * n;
+        let local = l.x + n * (l.y + n * l.z);
+        (cell, local as usize)
+    }
+
+    /// Adds `points` to the statistics of their voxels, allocating the cells
+    /// they first touch; returns how many were added (non-finite and
+    /// out-of-range points are skipped).
+    ///
+    /// Points are binned and sorted by cell in parallel (stably, so each
+    /// voxel sees its points in input order and the result does not depend
+    /// on the thread count), then every touched cell is filled by one task.
+    pub fn insert_points(&mut self, points: &[Vec3]) -> usize {
+        let mut binned: Vec<Binned> = points
+            .par_iter()
+            .filter_map(|&p| {
+                let v = self.voxel_of(p)?;
+                let (cell, local) = self.split(v);
+                Some(Binned {
+                    cell,
+                    local: local as u32,
+                    point: p,
+                })
+            })
+            .collect();
+        binned.par_sort_by_key(|b| (b.cell.x, b.cell.y, b.cell.z, b.local));
+
+        // Runs of one cell each; new cells are allocated here, serially,
+        // because the index is shared.
+        let voxels = (self.n as usize).pow(3);
+        let mut runs: Vec<(u32, std::ops::Range<usize>)> = Vec::new();
+        let mut start = 0;
+        while start < binned.len() {
+            let cell = binned[start].cell;
+            let mut end = start + 1;
+            while end < binned.len() && binned[end].cell == cell {
+                end += 1;
+            }
+            let next = self.cells.len() as u32;
+            let slot = *self.index.entry(cell).or_insert(next);
+            if slot == next {
+                self.keys.push(cell);
+                self.cells
+                    .push(vec![VoxelStats::EMPTY; voxels].into_boxed_slice());
+            }
+            runs.push((slot, start..end));
+            start = end;
+        }
+
+        // Each run owns a distinct cell: hand out disjoint `&mut`s.
+        let mut slots: Vec<Option<&mut [VoxelStats]>> =
+            self.cells.iter_mut().map(|c| Some(&mut **c)).collect();
+        let jobs: Vec<(&mut [VoxelStats], &[Binned])> = runs
+            .into_iter()
+            .map(|(slot, range)| {
+                let cell = slots[slot as usize]
+                    .take()
+                    .expect("each cell appears in one run after the sort");
+                (cell, &binned[range])
+            })
+            .collect();
+        jobs.into_par_iter().for_each(|(cell, pts)| {
+            for b in pts {
+                cell[b.local as usize].add_point(b.point.as_dvec3());
+            }
+        });
+        binned.len()
+    }
+
+    /// Statistics of voxel `v`, `None` when it holds no point.
+    pub fn voxel(&self, v: IVec3) -> Option<&VoxelStats> {
+        let (cell, local) = self.split(v);
+        let slot = *self.index.get(&cell)?;
+        let s = &self.cells[slot as usize][local];
+        (s.count > 0).then_some(s)
+    }
+
+    /// Statistics of the 2×2×2 voxels sharing the grid vertex `corner`
+    /// (voxels `corner − 1 ..= corner` on each axis), combined by eqs. (2)–(3):
+    /// the sliding window of the paper. Empty when none holds a point.
+    pub fn neighbourhood(&self, corner: IVec3) -> VoxelStats {
+        let mut acc = VoxelStats::EMPTY;
+        // Fixed order, so a vertex's result is reproducible bit for bit.
+        for dz in -1..=0 {
+            for dy in -1..=0 {
+                for dx in -1..=0 {
+                    if let Some(s) = self.voxel(corner + IVec3::new(dx, dy, dz)) {
+                        acc.merge(s);
+                    }
+                }
+            }
+        }
+        acc
+    }
+
+    /// Every voxel holding at least one point, cell by cell in allocation
+    /// order, x fastest inside a cell.
+    pub fn occupied_voxels(&self) -> impl Iterator<Item = (IVec3, &VoxelStats)> + '_ {
+        let n = self.n;
+        self.keys
+            .iter()
+            .zip(&self.cells)
+            .flat_map(move |(&key, cell)| {
+                cell.iter().enumerate().filter_map(move |(i, s)| {
+                    if s.count == 0 {
+                        return None;
+                    }
+                    let i = i as i32;
+                    let l = IVec3::new(i % n, (i / n) % n, i / (n * n));
+                    Some((key * n + l, s))
+                })
+            })
+    }
+
+    /// Bytes held: the fine grids, the cell list and the coarse index
+    /// (its capacity, with one control byte per bucket as hashbrown uses).
+    pub fn memory_bytes(&self) -> usize {
+        let voxels = (self.n as usize).pow(3);
+        self.cells.len() * voxels * std::mem::size_of::<VoxelStats>()
+            + self.cells.capacity() * std::mem::size_of::<Box<[VoxelStats]>>()
+            + self.keys.capacity() * std::mem::size_of::<IVec3>()
+            + self.index.capacity() * (std::mem::size_of::<(IVec3, u32)>() + 1)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use glam::DVec3;
+    use rand::rngs::SmallRng;
+    use rand::seq::SliceRandom;
+    use rand::{Rng, SeedableRng};
+
+    fn grid() -> PlaneGrid {
+        PlaneGrid::new(PlaneGridConfig::default()).unwrap()
+    }
+
+    fn assert_close(a: &VoxelStats, b: &VoxelStats) {
+        assert_eq!(a.count, b.count);
+        assert!(
+            (a.mean - b.mean).abs().max_element() <= 1e-9 * a.mean.abs().max_element().max(1.0)
+        );
+        let (ma, mb) = (a.scatter.to_mat3(), b.scatter.to_mat3());
+        let scale = (0..3)
+            .map(|i| ma.col(i).abs().max_element())
+            .fold(1e-300, f64::max);
+        for i in 0..3 {
+            assert!((ma.col(i) - mb.col(i)).abs().max_element() <= 1e-9 * scale);
+        }
+    }
+
+    #[test]
+    fn sizes_are_validated() {
+        let ok = |voxel, cell| PlaneGridConfig { voxel, cell }.cell_voxels();
+        assert_eq!(ok(0.05, 1.0).unwrap(), 20);
+        assert_eq!(ok(0.1, 0.8).unwrap(), 8);
+        assert_eq!(ok(0.25, 0.25).unwrap(), 1);
+        assert!(ok(0.05, 1.01).is_err());
+        assert!(ok(0.3, 1.0).is_err());
+        assert!(ok(1.0, 0.5).is_err());
+        assert!(ok(0.0, 1.0).is_err());
+        assert!(ok(-0.05, 1.0).is_err());
+        assert!(ok(f32::NAN, 1.0).is_err());
+        assert!(ok(0.05, f32::INFINITY).is_err());
+        assert!(ok(0.001, 1.0).is_err());
+        assert!(PlaneGrid::new(PlaneGridConfig {
+            voxel: 0.05,
+            cell: 0.12
+        })
+        .is_err());
+    }
+
+    #[test]
+    fn voxels_and_cells_are_addressed_consistently() {
+        let mut g = grid();
+        let p = Vec3::new(-0.01, 0.99, 1.01);
+        assert_eq!(g.insert_points(&[p, Vec3::NAN, Vec3::splat(1e12)]), 1);
+        let v = g.voxel_of(p).unwrap();
+        assert_eq!(v, IVec3::new(-1, 19, 20));
+        assert_eq!(g.voxel(v).unwrap().count, 1);
+        assert!(g.voxel(v + IVec3::X).is_none());
+        assert_eq!(g.cell_count(), 1);
+        let occ: Vec<_> = g.occupied_voxels().collect();
+        assert_eq!(occ.len(), 1);
+        assert_eq!(occ[0].0, v);
+        assert!(g
+            .corner_position(IVec3::new(2, -4, 20))
+            .abs_diff_eq(Vec3::new(0.1, -0.2, 1.0), 1e-6));
+        // One 20³ grid of statistics plus bookkeeping.
+        assert!(g.memory_bytes() >= 8000 * std::mem::size_of::<VoxelStats>());
+    }
+
+    #[test]
+    fn insertion_order_and_batching_do_not_matter() {
+        let mut rng = SmallRng::seed_from_u64(21);
+        let mut pts: Vec<Vec3> = (0..20_000)
+            .map(|_| {
+                Vec3::new(
+                    rng.gen_range(-1.5..1.5),
+                    rng.gen_range(-1.5..1.5),
+                    rng.gen_range(-0.2..0.2),
+                )
+            })
+            .collect();
+        let mut a = grid();
+        a.insert_points(&pts);
+        pts.shuffle(&mut rng);
+        let mut b = grid();
+        for chunk in pts.chunks(777) {
+            b.insert_points(chunk);
+        }
+        assert_eq!(a.occupied_voxels().count(), b.occupied_voxels().count());
+        for (v, s) in a.occupied_voxels() {
+            assert_close(s, b.voxel(v).unwrap());
+        }
+        let total: u32 = a.occupied_voxels().map(|(_, s)| s.count).sum();
+        assert_eq!(total, 20_000);
+    }
+
+    #[test]
+    fn neighbourhood_across_a_cell_border_equals_batch() {
+        let mut g = grid();
+        // Vertex (20, 20, 20) is the corner shared by eight 1 m cells.
+        let corner = IVec3::splat(20);
+        let c = g.corner_position(corner);
+        let mut rng = SmallRng::seed_from_u64(22);
+        let pts: Vec<Vec3> = (0..5000)
+            .map(|_| {
+                c + Vec3::new(
+                    rng.gen_range(-0.1..0.1),
+                    rng.gen_range(-0.1..0.1),
+                    rng.gen_range(-0.1..0.1),
+                )
+            })
+            .collect();
+        g.insert_points(&pts);
+        assert_eq!(g.cell_count(), 8);
+        let inside: Vec<DVec3> = pts
+            .iter()
+            .filter(|&&p| {
+                let v = g.voxel_of(p).unwrap();
+                (v - corner + IVec3::ONE).cmpge(IVec3::ZERO).all()
+                    && (v - corner).cmple(IVec3::ZERO).all()
+            })
+            .map(|p| p.as_dvec3())
+            .collect();
+        assert!(inside.len() > 400);
+        assert_close(&g.neighbourhood(corner), &VoxelStats::from_points(&inside));
+        assert!(g.neighbourhood(IVec3::splat(100)).is_empty());
+    }
+}
