@@ -383,6 +383,36 @@ mod tests {
     }
 
     #[test]
+    fn thread_count_does_not_change_a_bit() {
+        let mut rng = SmallRng::seed_from_u64(23);
+        let pts: Vec<Vec3> = (0..50_000)
+            .map(|_| {
+                Vec3::new(
+                    rng.gen_range(-3.0..3.0),
+                    rng.gen_range(-3.0..3.0),
+                    rng.gen_range(-0.3..0.3),
+                )
+            })
+            .collect();
+        let build = |threads| {
+            let pool = rayon::ThreadPoolBuilder::new()
+                .num_threads(threads)
+                .build()
+                .unwrap();
+            pool.install(|| {
+                let mut g = grid();
+                g.insert_points(&pts);
+                g
+            })
+        };
+        let (one, many) = (build(1), build(4));
+        let a: Vec<_> = one.occupied_voxels().map(|(v, s)| (v, *s)).collect();
+        let b: Vec<_> = many.occupied_voxels().map(|(v, s)| (v, *s)).collect();
+        assert_eq!(a, b);
+        assert_eq!(one.memory_bytes(), many.memory_bytes());
+    }
+
+    #[test]
     fn neighbourhood_across_a_cell_border_equals_batch() {
         let mut g = grid();
         // Vertex (20, 20, 20) is the corner shared by eight 1 m cells.

@@ -1,4 +1,5 @@
-//! Voxel planes (Whelan-style "voxel planes" maps): the statistics core.
+//! Voxel planes (Ryde, Dhiman and Platt, "Voxel Planes: Rapid Visualization
+//! and Meshification of Point Cloud Ensembles"): the statistics core.
 //!
 //! Points are binned into fine voxels (0.05 m) held in a semi-sparse map of
 //! coarse cells (1 m), see [`grid`]. Each voxel keeps only sufficient
