@@ -11,16 +11,20 @@ use std::path::Path;
 /// decimals are off by ~1e-4, while a wrong column order or a typo is far off.
 const QUAT_NORM_TOLERANCE: f64 = 1e-2;
 
+/// The lines of a TUM-style text file that hold data, with their 1-based
+/// numbers: blank lines and `#` comments are skipped.
+pub(crate) fn data_lines(text: &str) -> impl Iterator<Item = (usize, &str)> {
+    text.lines()
+        .enumerate()
+        .map(|(i, line)| (i + 1, line.trim()))
+        .filter(|(_, line)| !line.is_empty() && !line.starts_with('#'))
+}
+
 /// Parses TUM trajectory `text`; `source` names the file in errors.
 pub fn parse_tum(text: &str, source: &Path) -> Result<Vec<(f64, Pose)>> {
     let mut poses = Vec::new();
-    for (index, line) in text.lines().enumerate() {
-        let line = line.trim();
-        if line.is_empty() || line.starts_with('#') {
-            continue;
-        }
-        let fail =
-            |message: String| Error::format(source, format!("line {}: {message}", index + 1));
+    for (number, line) in data_lines(text) {
+        let fail = |message: String| Error::format(source, format!("line {number}: {message}"));
         let fields: Vec<&str> = line.split_whitespace().collect();
         if fields.len() != 8 {
             return Err(fail(format!(

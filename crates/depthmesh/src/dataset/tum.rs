@@ -94,13 +94,8 @@ fn read_optional(path: &Path) -> Result<Option<String>> {
 /// Parses `timestamp filename` lines, skipping blank lines and `#` comments.
 fn parse_list(text: &str, source: &Path) -> Result<Vec<(f64, String)>> {
     let mut entries = Vec::new();
-    for (index, line) in text.lines().enumerate() {
-        let line = line.trim();
-        if line.is_empty() || line.starts_with('#') {
-            continue;
-        }
-        let fail =
-            |message: String| Error::format(source, format!("line {}: {message}", index + 1));
+    for (number, line) in crate::trajectory::data_lines(text) {
+        let fail = |message: String| Error::format(source, format!("line {number}: {message}"));
         let fields: Vec<&str> = line.split_whitespace().collect();
         let [timestamp, file] = fields[..] else {
             return Err(fail(format!(
