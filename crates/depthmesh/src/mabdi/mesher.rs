@@ -117,6 +117,25 @@ impl DepthMesher {
 mod tests {
     use super::*;
 
+    /// Meshes the novel pixels of `depth` seen from the origin.
+    fn mesh_novel(
+        depth: &DepthImage,
+        classes: &[PixelClass],
+        k: &Intrinsics,
+    ) -> (usize, Vec<Vec3>, Vec<[u32; 3]>) {
+        let (mut p, mut t) = (Vec::new(), Vec::new());
+        let n = DepthMesher::new().mesh(
+            depth,
+            classes,
+            |c| c == PixelClass::Novel,
+            k,
+            &Pose::IDENTITY,
+            &mut p,
+            &mut t,
+        );
+        (n, p, t)
+    }
+
     #[test]
     fn full_valid_image_gives_eq_3_6() {
         let k = Intrinsics::kinect();
@@ -126,16 +145,7 @@ mod tests {
             data: vec![2.0; 640 * 480],
         };
         let classes = vec![PixelClass::Novel; 640 * 480];
-        let (mut p, mut t) = (Vec::new(), Vec::new());
-        let n = DepthMesher::new().mesh(
-            &depth,
-            &classes,
-            |c| c == PixelClass::Novel,
-            &k,
-            &Pose::IDENTITY,
-            &mut p,
-            &mut t,
-        );
+        let (n, p, t) = mesh_novel(&depth, &classes, &k);
         assert_eq!(n, 612_162);
         assert_eq!(full_frame_triangles(640, 480), 612_162);
         assert_eq!(
@@ -158,16 +168,7 @@ mod tests {
         };
         let mut classes = vec![PixelClass::Novel; 12];
         classes[5] = PixelClass::Known; // pixel (1, 1): used by 6 of the 12 triangles
-        let (mut p, mut t) = (Vec::new(), Vec::new());
-        let n = DepthMesher::new().mesh(
-            &depth,
-            &classes,
-            |c| c == PixelClass::Novel,
-            &k,
-            &Pose::IDENTITY,
-            &mut p,
-            &mut t,
-        );
+        let (n, p, t) = mesh_novel(&depth, &classes, &k);
         assert_eq!(n, 12 - 6);
         assert!(t.iter().all(|tri| tri
             .iter()

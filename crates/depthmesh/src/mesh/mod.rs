@@ -235,3 +235,25 @@ impl Mesh {
         Ok(())
     }
 }
+
+/// Copies of `clean` with four bytes overwritten at random (xorshift from
+/// `seed`), for checking that readers fail cleanly on corrupted files.
+#[cfg(test)]
+pub(crate) fn corrupted_copies(
+    clean: &[u8],
+    seed: u64,
+    copies: usize,
+) -> impl Iterator<Item = Vec<u8>> + '_ {
+    let mut state = seed;
+    (0..copies).map(move |_| {
+        let mut bytes = clean.to_vec();
+        for _ in 0..4 {
+            state ^= state << 13;
+            state ^= state >> 7;
+            state ^= state << 17;
+            let at = (state >> 8) as usize % bytes.len();
+            bytes[at] = state as u8;
+        }
+        bytes
+    })
+}

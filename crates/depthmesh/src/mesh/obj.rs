@@ -314,16 +314,7 @@ mod tests {
     #[test]
     fn garbage_never_panics() {
         let clean = to_text(&sample()).into_bytes();
-        let mut state = 0x2545_f491_4f6c_dd1du64;
-        for _ in 0..2000 {
-            let mut bytes = clean.clone();
-            for _ in 0..4 {
-                state ^= state << 13;
-                state ^= state >> 7;
-                state ^= state << 17;
-                let at = (state >> 8) as usize % bytes.len();
-                bytes[at] = state as u8;
-            }
+        for bytes in crate::mesh::corrupted_copies(&clean, 0x2545_f491_4f6c_dd1d, 2000) {
             if let Err(e) = read_obj_from_bytes(&bytes, Path::new("test.obj")) {
                 assert!(e.to_string().contains("test.obj"));
             }

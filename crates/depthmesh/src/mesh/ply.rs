@@ -1144,16 +1144,7 @@ mod tests {
     #[test]
     fn corrupted_bytes_never_panic() {
         let clean = to_bytes(&sample(true, true), PlyFormat::BinaryLittleEndian);
-        let mut state = 0x9e37_79b9_7f4a_7c15u64;
-        for _ in 0..2000 {
-            let mut bytes = clean.clone();
-            for _ in 0..4 {
-                state ^= state << 13;
-                state ^= state >> 7;
-                state ^= state << 17;
-                let at = (state >> 8) as usize % bytes.len();
-                bytes[at] = state as u8;
-            }
+        for bytes in crate::mesh::corrupted_copies(&clean, 0x9e37_79b9_7f4a_7c15, 2000) {
             if parse(&bytes).is_err() {
                 err(&bytes);
             }
