@@ -25,6 +25,8 @@ pub struct TsdfMapper {
     assembled: bool,
     /// Range of depths ray casting searches.
     range: (f32, f32),
+    /// The pose and depth of the last fused frame.
+    last_view: Option<(Pose, DepthImage)>,
 }
 
 impl TsdfMapper {
@@ -40,6 +42,7 @@ impl TsdfMapper {
             mesh: Mesh::default(),
             assembled: true,
             range: (near, far),
+            last_view: None,
         })
     }
 
@@ -74,6 +77,10 @@ impl Mapper for TsdfMapper {
         self.volume
             .integrate(&frame.depth, frame.color.as_ref(), &self.intrinsics, pose)?;
         let integrated = start.elapsed();
+        let (at, depth) = self.last_view.get_or_insert_with(Default::default);
+        *at = *pose;
+        depth.reset(frame.depth.width, frame.depth.height);
+        depth.data.copy_from_slice(&frame.depth.data);
         let due = self.remesh_every > 0 && self.volume.frames().is_multiple_of(self.remesh_every);
         let remeshed = if due {
             self.cache.update(&self.volume)
@@ -96,9 +103,17 @@ impl Mapper for TsdfMapper {
     }
 
     fn render_depth(&self, intrinsics: &Intrinsics, pose: &Pose) -> DepthImage {
-        let mut image = RaycastImage::default();
-        self.raycast(intrinsics, pose, &mut image);
-        image.depth
+        let mut depth = DepthImage::default();
+        // Tracking asks for the view of the frame just fused: start the
+        // rays at what that frame measured.
+        let hint = self
+            .last_view
+            .as_ref()
+            .filter(|(at, _)| at == pose)
+            .map(|(_, d)| (d, &self.intrinsics));
+        self.volume
+            .raycast_depth(intrinsics, pose, self.range, hint, &mut depth);
+        depth
     }
 
     fn mesh(&mut self) -> &Mesh {
