@@ -92,6 +92,7 @@ pub fn run(args: &DemoArgs, quiet: bool) -> Result<()> {
             threshold: None,
             voxel: 0.01,
             keep_removed: false,
+            track: false,
             dashboard: true,
             out: args.out.join(e.name),
             export: Default::default(),

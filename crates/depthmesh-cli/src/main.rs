@@ -3,12 +3,14 @@
 mod bench;
 mod demo;
 mod draw;
+mod eval;
 mod export;
 mod output;
 mod progress;
 mod reconstruct;
 mod simplify;
 mod simulate;
+mod tracking;
 mod views;
 
 use clap::{Parser, Subcommand};
@@ -29,13 +31,16 @@ struct Cli {
 enum Command {
     /// Map a simulated sensor circling a scene file.
     Simulate(simulate::SimulateArgs),
-    /// Map a recorded depth sequence with poses (7-Scenes or TUM layout).
+    /// Map a recorded depth sequence (7-Scenes or TUM layout), with its poses or tracked ones.
     Reconstruct(reconstruct::ReconstructArgs),
     /// Run the thesis's experiments on the built-in scenes and summarise them.
     Demo(demo::DemoArgs),
     /// Measure speed on generated data (figures as JSON).
     #[command(subcommand)]
     Bench(bench::BenchCommand),
+    /// Measure accuracy against a reference (trajectories).
+    #[command(subcommand)]
+    Eval(eval::EvalCommand),
     /// Simplify a mesh file by quadric edge collapse.
     Simplify(simplify::SimplifyArgs),
     /// Write a mesh as game-engine assets: chunked GLB, OBJ or PLY.
@@ -49,6 +54,7 @@ fn main() -> ExitCode {
         Command::Demo(args) => demo::run(&args, cli.quiet),
         Command::Reconstruct(args) => reconstruct::run(&args, cli.quiet),
         Command::Bench(command) => bench::run(&command),
+        Command::Eval(command) => eval::run(&command),
         Command::Simplify(args) => simplify::run(&args, cli.quiet),
         Command::Export(args) => export::run(&args, cli.quiet),
     };

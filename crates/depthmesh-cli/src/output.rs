@@ -26,6 +26,23 @@ pub struct FrameStats {
     pub total_elements: usize,
     /// Mesh vertices after the frame.
     pub total_vertices: usize,
+    /// How the frame was tracked, when poses are tracked.
+    pub track: Option<TrackStats>,
+}
+
+/// The tracking columns of a `stats.csv` row.
+#[derive(Clone, Copy, Debug)]
+pub struct TrackStats {
+    /// Milliseconds spent tracking (part of the row's `ms`).
+    pub ms: f64,
+    /// Fraction of the frame's points matched with the map.
+    pub inlier_fraction: f64,
+    /// RMS point-to-plane error of the matches in millimetres.
+    pub residual_mm: f64,
+    /// How well the view pins down all six degrees of freedom (0: not at all).
+    pub conditioning: f64,
+    /// Whether the frame was lost (and not fused).
+    pub lost: bool,
 }
 
 /// Collects what a run produces and writes the contract files.
@@ -106,11 +123,17 @@ impl RunOutput {
     }
 
     fn write_stats(&self) -> Result<()> {
-        let extra: Vec<&str> = self
-            .frames
-            .first()
-            .map(|f| f.report.extra.iter().map(|(k, _)| *k).collect())
-            .unwrap_or_default();
+        // Every back-end figure any row reported, in first-seen order; a row
+        // without one (a frame lost by tracking) leaves its field empty.
+        let mut extra: Vec<&str> = Vec::new();
+        for f in &self.frames {
+            for (k, _) in &f.report.extra {
+                if !extra.contains(k) {
+                    extra.push(k);
+                }
+            }
+        }
+        let tracked = self.frames.iter().any(|f| f.track.is_some());
         write_atomic(&self.path("stats.csv"), |w| {
             write!(
                 w,
@@ -118,6 +141,9 @@ impl RunOutput {
             )?;
             for k in &extra {
                 write!(w, ",{k}")?;
+            }
+            if tracked {
+                write!(w, ",track_ms,inlier_fraction,residual_mm,conditioning,lost")?;
             }
             writeln!(w)?;
             for f in &self.frames {
@@ -131,12 +157,25 @@ impl RunOutput {
                     f.total_elements,
                     f.total_vertices
                 )?;
-                for (_, v) in &f.report.extra {
-                    if v.fract() == 0.0 {
-                        write!(w, ",{v}")?;
-                    } else {
-                        write!(w, ",{v:.3}")?;
+                for &k in &extra {
+                    match f.report.get(k) {
+                        Some(v) if v.fract() == 0.0 => write!(w, ",{v}")?,
+                        Some(v) => write!(w, ",{v:.3}")?,
+                        None => write!(w, ",")?,
                     }
+                }
+                match (tracked, f.track) {
+                    (true, Some(t)) => write!(
+                        w,
+                        ",{:.3},{:.4},{:.3},{:.5},{}",
+                        t.ms,
+                        t.inlier_fraction,
+                        t.residual_mm,
+                        t.conditioning,
+                        u8::from(t.lost)
+                    )?,
+                    (true, None) => write!(w, ",,,,,0")?,
+                    (false, _) => {}
                 }
                 writeln!(w)?;
             }

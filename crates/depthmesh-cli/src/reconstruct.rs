@@ -1,16 +1,18 @@
-//! `depthmesh reconstruct`: a recorded depth sequence with poses into a map.
+//! `depthmesh reconstruct`: a recorded depth sequence into a map, with the
+//! data's poses or tracked ones.
 
 use crate::draw::canvas::Canvas;
 use crate::draw::colormap::normal_shade;
 use crate::export::RunExportArgs;
 use crate::output::{FrameStats, RunOutput};
 use crate::progress;
+use crate::tracking::PoseSource;
 use anyhow::{bail, Context, Result};
 use clap::{Args, ValueEnum};
 use depthmesh::atomic::write_atomic;
 use depthmesh::dataset::{Dataset, DatasetOptions, FrameRange, IntrinsicsSpec};
 use depthmesh::mabdi::{MabdiConfig, MabdiMapper};
-use depthmesh::map::Mapper;
+use depthmesh::map::{IntegrateReport, Mapper};
 use depthmesh::tsdf::mapper::TsdfMapper;
 use depthmesh::tsdf::raycast::RaycastImage;
 use depthmesh::tsdf::{TsdfConfig, BLOCK_VOXELS};
@@ -68,6 +70,10 @@ pub struct ReconstructArgs {
     /// Write a shaded ray-cast "status image" of the map every N frames (tsdf).
     #[arg(long, default_value_t = 0)]
     pub status_every: usize,
+    /// Estimate poses by ICP against the map (only the first frame's pose is
+    /// taken from the data, or the origin when it has none).
+    #[arg(long)]
+    pub track: bool,
     /// Go on past unreadable frames, reporting them.
     #[arg(long)]
     pub skip_bad_frames: bool,
@@ -129,31 +135,35 @@ pub fn run(args: &ReconstructArgs, quiet: bool) -> Result<()> {
     let mut raycast = RaycastImage::default();
     let mut out = RunOutput::create(&args.out)?;
     let bar = progress::bar(dataset.len() as u64, "reconstruct", quiet);
+    let mut poses = PoseSource::new(args.track, k);
     let mut frames = dataset.frames();
     for frame in frames.by_ref() {
         let frame = frame?;
-        let pose = frame.pose.with_context(|| {
-            format!(
-                "frame {} has no pose (camera tracking is not available yet)",
-                frame.index
-            )
-        })?;
         let start = Instant::now();
-        let mapper = map.mapper();
-        let report = mapper
-            .integrate(&frame, &pose)
-            .with_context(|| format!("frame {}", frame.index))?;
+        let decided = poses.pose(frame.index, frame.pose, &frame.depth, map.mapper())?;
+        if let Some(message) = &decided.message {
+            bar.suspend(|| eprintln!("{message}"));
+        }
+        let report = match decided.pose {
+            Some(pose) => {
+                out.trajectory.push((frame.timestamp, pose));
+                map.mapper()
+                    .integrate(&frame, &pose)
+                    .with_context(|| format!("frame {}", frame.index))?
+            }
+            None => IntegrateReport::default(),
+        };
         let ms = start.elapsed().as_secs_f64() * 1e3;
-        let stats = mapper.stats();
+        let stats = map.mapper().stats();
         out.frames.push(FrameStats {
             frame: frame.index,
             ms,
             report,
             total_elements: stats.elements,
             total_vertices: stats.vertices,
+            track: decided.track,
         });
-        out.trajectory.push((frame.timestamp, pose));
-        if let RealMap::Tsdf(t) = &map {
+        if let (RealMap::Tsdf(t), Some(pose)) = (&map, decided.pose) {
             if args.status_every > 0 && out.frames.len() % args.status_every == 0 {
                 write_status_image(t, &k, &pose, &mut raycast, &out.path("status"), frame.index)?;
             }
@@ -171,6 +181,7 @@ pub fn run(args: &ReconstructArgs, quiet: bool) -> Result<()> {
     let mut summary = Map::new();
     summary.insert("dataset".into(), args.dataset.display().to_string().into());
     summary.insert("skipped_frames".into(), json!(frames.skipped().len()));
+    poses.summarize(&mut summary);
     summary.insert(
         "integrate_fps".into(),
         json!(out.frames.len() as f64 / out.seconds()),

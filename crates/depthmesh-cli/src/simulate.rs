@@ -4,18 +4,24 @@
 use crate::export::RunExportArgs;
 use crate::output::{FrameStats, RunOutput};
 use crate::progress;
+use crate::tracking::PoseSource;
 use crate::views::{Dashboard, MapperView};
 use anyhow::{bail, Context, Result};
 use clap::{Args, ValueEnum};
+use depthmesh::atomic::write_atomic;
 use depthmesh::eval::fraction_within;
+use depthmesh::eval::trajectory::trajectory_error;
 use depthmesh::mabdi::classify::Threshold;
 use depthmesh::mabdi::{MabdiConfig, MabdiMapper, NaiveMapper};
-use depthmesh::map::Mapper;
+use depthmesh::map::{IntegrateReport, Mapper};
 use depthmesh::mesh::ply::{write_ply, PlyFormat};
 use depthmesh::sim::{NoiseModel, PathSpec, Scene, SceneOptions, SimulatedSensor};
+use depthmesh::trajectory::format_tum;
 use depthmesh::tsdf::mapper::TsdfMapper;
 use depthmesh::tsdf::TsdfConfig;
+use depthmesh::Pose;
 use serde_json::{json, Map, Value};
+use std::io::Write;
 use std::path::{Path, PathBuf};
 use std::time::Instant;
 
@@ -69,6 +75,11 @@ pub struct SimulateArgs {
     /// Voxel size in metres (tsdf; truncation 4 voxels).
     #[arg(long, default_value_t = 0.01)]
     pub voxel: f32,
+    /// Estimate poses by ICP against the map (only the first pose of the
+    /// path is given); `trajectory.txt` then holds the estimates,
+    /// `groundtruth.txt` the true poses, and the summary their error.
+    #[arg(long)]
+    pub track: bool,
     /// Write a dashboard image per iteration and the element plot (mabdi, naive).
     #[arg(long)]
     pub dashboard: bool,
@@ -199,15 +210,26 @@ pub fn run_scene(args: &SimulateArgs, scene: &Scene, quiet: bool) -> Result<RunS
 
     let bar = progress::bar(poses.len() as u64, scene.name.as_str(), quiet);
     let mut sensor_ms = Vec::with_capacity(poses.len());
-    for (i, pose) in poses.iter().enumerate() {
+    let mut tracking = PoseSource::new(args.track, sensor.intrinsics);
+    for (i, truth) in poses.iter().enumerate() {
         let iteration = i as u32 + 1;
         let start = Instant::now();
-        let frame = sensor.capture(scene, iteration, pose);
+        let frame = sensor.capture(scene, iteration, truth);
         let captured = start.elapsed().as_secs_f64() * 1e3;
-        let report = map
-            .mapper()
-            .integrate(&frame, pose)
-            .with_context(|| format!("iteration {iteration}"))?;
+        let decided =
+            tracking.pose(iteration as usize, Some(*truth), &frame.depth, map.mapper())?;
+        if let Some(message) = &decided.message {
+            bar.suspend(|| eprintln!("{message}"));
+        }
+        let report = match decided.pose {
+            Some(pose) => {
+                out.trajectory.push((iteration as f64, pose));
+                map.mapper()
+                    .integrate(&frame, &pose)
+                    .with_context(|| format!("iteration {iteration}"))?
+            }
+            None => IntegrateReport::default(),
+        };
         let ms = start.elapsed().as_secs_f64() * 1e3;
         let stats = map.mapper().stats();
         let new_triangles = report.new_elements;
@@ -218,8 +240,8 @@ pub fn run_scene(args: &SimulateArgs, scene: &Scene, quiet: bool) -> Result<RunS
             report,
             total_elements: stats.elements,
             total_vertices: stats.vertices,
+            track: decided.track,
         });
-        out.trajectory.push((iteration as f64, *pose));
         if let (Some(d), Some(view)) = (dashboard.as_mut(), map.view(new_triangles)) {
             d.draw(iteration, scene, &frame.depth, &view, &out.frames)?;
         }
@@ -255,6 +277,21 @@ pub fn run_scene(args: &SimulateArgs, scene: &Scene, quiet: bool) -> Result<RunS
     summary.insert("seed".into(), args.seed.into());
     summary.insert("dynamic".into(), args.dynamic.into());
     summary.insert("path".into(), args.path.to_string().into());
+    tracking.summarize(&mut summary);
+    if args.track {
+        // The true poses beside the estimated ones, and how far apart they are.
+        let truth: Vec<(f64, Pose)> = (1..).map(f64::from).zip(poses.iter().copied()).collect();
+        let tum = format_tum(&truth);
+        write_atomic(&out.path("groundtruth.txt"), |w| {
+            w.write_all(tum.as_bytes())
+        })?;
+        let e = trajectory_error(&out.trajectory, &truth, 0.0)?;
+        summary.insert("ate_rmse_cm".into(), json!(e.ate_rmse * 100.0));
+        summary.insert(
+            "ate_rmse_aligned_cm".into(),
+            json!(e.ate_rmse_aligned * 100.0),
+        );
+    }
     summary.insert("naive_elements".into(), json!(naive as u64));
     summary.insert(
         "elements_vs_naive".into(),

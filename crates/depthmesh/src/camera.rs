@@ -163,6 +163,12 @@ impl Pose {
         )
     }
 
+    /// The angle of the rotation in radians (0..=π), accurate for small
+    /// angles too (from the quaternion's vector part, not its cosine).
+    pub fn rotation_angle(&self) -> f32 {
+        2.0 * self.quat().xyz().length().min(1.0).asin()
+    }
+
     /// The optical axis (camera +z) in world coordinates.
     pub fn forward(&self) -> Vec3 {
         self.rotation.z_axis

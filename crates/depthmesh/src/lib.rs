@@ -10,6 +10,7 @@ pub mod error;
 pub mod eval;
 pub mod export;
 pub mod image;
+pub mod linalg;
 pub mod mabdi;
 pub mod map;
 pub mod mesh;
@@ -17,6 +18,7 @@ pub mod palette;
 pub mod planes;
 pub mod raster;
 pub mod sim;
+pub mod track;
 pub mod trajectory;
 pub mod tsdf;
 

@@ -293,6 +293,22 @@ impl Dataset {
         })
     }
 
+    /// The poses of the selected frames that have one, with their
+    /// timestamps, without reading any image.
+    pub fn trajectory(&self) -> Result<Vec<(f64, Pose)>> {
+        let mut poses = Vec::with_capacity(self.frames.len());
+        for files in &self.frames {
+            match &files.pose {
+                FramePose::Absent => {}
+                FramePose::Known(pose) => poses.push((files.timestamp, *pose)),
+                FramePose::File(path) => {
+                    poses.push((files.timestamp, frames_folder::read_pose(path)?));
+                }
+            }
+        }
+        Ok(poses)
+    }
+
     /// The selected frames in order, leaving out bad ones when `skip_bad_frames` is set.
     pub fn frames(&self) -> Frames<'_> {
         Frames {

@@ -1,6 +1,8 @@
-//! Accuracy of maps: distances between meshes and to ground truth.
+//! Accuracy of maps and trajectories: distances between meshes and to
+//! ground truth, trajectory errors.
 
 pub mod distance;
+pub mod trajectory;
 
 use crate::mesh::Mesh;
 use distance::MeshDistance;

@@ -1,0 +1,38 @@
+#!/usr/bin/env bash
+# Camera tracking on 7-Scenes frames, only the first pose given: depthmesh
+# (`reconstruct --track`, frame-to-model ICP + TSDF fusion) against Open3D's
+# dense RGB-D SLAM (frame-to-model ICP + VoxelBlockGrid), side by side on this
+# machine: frames/s of tracking plus integration, lost frames, and the
+# trajectory error against the folder's poses (no alignment, both starting
+# at the first pose).
+#
+# Usage: bench/track_vs_open3d.sh [FRAMES_END] [VOXEL]     (defaults 300, 0.01)
+# Needs ../shared beside the repository (or DEPTHMESH_SHARED).
+set -euo pipefail
+cd "$(dirname "$0")/.."
+shared=${DEPTHMESH_SHARED:-../shared}
+data=$shared/data/7scenes-redkitchen
+if [[ ! -x $shared/tools/setup-anchors.sh || ! -d $data ]]; then
+  echo "error: reference tools or 7-Scenes frames not found under $shared (set DEPTHMESH_SHARED)" >&2
+  exit 1
+fi
+end=${1:-300}
+voxel=${2:-0.01}
+PY=$("$shared/tools/setup-anchors.sh")
+cargo build --release --quiet
+work=$(mktemp -d)
+trap 'rm -rf "$work"' EXIT
+./target/release/depthmesh reconstruct "$data" --frames "0..$end" --voxel "$voxel" --track --quiet --out "$work/ours"
+ours_ate=$("$PY" "$shared/tools/trajectory_error.py" "$work/ours/trajectory.txt" --frames-folder "$data" | tail -1)
+theirs=$("$PY" "$shared/tools/open3d_slam.py" "$data" --end "$end" --voxel "$voxel" --trajectory "$work/open3d.txt" | tail -1)
+theirs_ate=$("$PY" "$shared/tools/trajectory_error.py" "$work/open3d.txt" --frames-folder "$data" | tail -1)
+python3 - "$work/ours/summary.json" "$ours_ate" "$theirs" "$theirs_ate" <<'PY'
+import json, sys
+ours = json.load(open(sys.argv[1])); ate = json.loads(sys.argv[2])
+theirs = json.loads(sys.argv[3]); theirs_ate = json.loads(sys.argv[4])
+print(f"frames {ours['frames']}, voxel {ours['voxel']:.3f} m")
+print(f"speed    depthmesh {ours['fps']:6.1f} frames/s ({ours['track_ms']:.1f} ms tracking per frame)   Open3D {theirs['fps']:6.1f} frames/s   ratio {ours['fps'] / theirs['fps']:.2f}x")
+print(f"lost     depthmesh {ours['lost_frames']} frames ({ours['lost']} events)   Open3D {theirs['lost']} frames")
+print(f"ATE      depthmesh {ate['ate_rmse_cm']:.2f} cm (aligned {ate['ate_rmse_aligned_cm']:.2f}, max {ate['max_cm']:.2f})   "
+      f"Open3D {theirs_ate['ate_rmse_cm']:.2f} cm (aligned {theirs_ate['ate_rmse_aligned_cm']:.2f}, max {theirs_ate['max_cm']:.2f})")
+PY

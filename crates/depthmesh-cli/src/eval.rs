@@ -1,0 +1,100 @@
+//! `depthmesh eval`: accuracy of a run's output against a reference.
+
+use anyhow::{bail, Result};
+use clap::{Args, Subcommand};
+use depthmesh::dataset::{Dataset, DatasetOptions};
+use depthmesh::eval::trajectory::trajectory_error;
+use depthmesh::trajectory::read_tum;
+use depthmesh::Pose;
+use serde_json::json;
+use std::path::{Path, PathBuf};
+
+/// What `eval` compares.
+#[derive(Subcommand, Debug)]
+pub enum EvalCommand {
+    /// Trajectory error (ATE raw and aligned, RPE) of an estimate against a reference.
+    Trajectory(TrajectoryArgs),
+}
+
+/// Flags of `depthmesh eval trajectory`.
+#[derive(Args, Debug)]
+pub struct TrajectoryArgs {
+    /// Estimated trajectory (TUM format, e.g. a run's trajectory.txt).
+    pub estimate: PathBuf,
+    /// Reference: a TUM trajectory file, or a dataset folder (7-Scenes
+    /// frames folder or TUM RGB-D folder) whose poses serve as reference.
+    pub reference: PathBuf,
+    /// Poses further apart in time than this (seconds) are not matched.
+    #[arg(long, default_value_t = 0.02)]
+    pub max_dt: f64,
+    /// Print one JSON line instead of text.
+    #[arg(long)]
+    pub json: bool,
+}
+
+/// Runs `eval`.
+pub fn run(command: &EvalCommand) -> Result<()> {
+    match command {
+        EvalCommand::Trajectory(args) => trajectory(args),
+    }
+}
+
+fn trajectory(args: &TrajectoryArgs) -> Result<()> {
+    if !(args.max_dt >= 0.0 && args.max_dt.is_finite()) {
+        bail!(
+            "--max-dt must be a non-negative number of seconds, got {}",
+            args.max_dt
+        );
+    }
+    let estimate = read_tum(&args.estimate)?;
+    let reference = read_reference(&args.reference)?;
+    let e = trajectory_error(&estimate, &reference, args.max_dt)?;
+    if args.json {
+        println!(
+            "{}",
+            json!({
+                "matched": e.matched,
+                "ate_rmse_cm": e.ate_rmse * 100.0,
+                "ate_rmse_aligned_cm": e.ate_rmse_aligned * 100.0,
+                "ate_max_cm": e.ate_max * 100.0,
+                "rpe_translation_mm": e.rpe_translation * 1000.0,
+                "rpe_rotation_deg": e.rpe_rotation_degrees,
+            })
+        );
+    } else {
+        println!(
+            "matched {} of {} estimated poses",
+            e.matched,
+            estimate.len()
+        );
+        println!(
+            "ATE RMSE {:.2} cm (max {:.2} cm); after rigid alignment {:.2} cm",
+            e.ate_rmse * 100.0,
+            e.ate_max * 100.0,
+            e.ate_rmse_aligned * 100.0
+        );
+        println!(
+            "RPE per step RMSE {:.2} mm, {:.3}°",
+            e.rpe_translation * 1000.0,
+            e.rpe_rotation_degrees
+        );
+    }
+    Ok(())
+}
+
+/// A TUM file, or the poses of a dataset folder.
+fn read_reference(path: &Path) -> Result<Vec<(f64, Pose)>> {
+    if path.is_dir() {
+        let dataset = Dataset::open(path, &DatasetOptions::default())?;
+        let poses = dataset.trajectory()?;
+        if poses.is_empty() {
+            bail!(
+                "{}: the dataset has no poses to compare with",
+                path.display()
+            );
+        }
+        Ok(poses)
+    } else {
+        Ok(read_tum(path)?)
+    }
+}

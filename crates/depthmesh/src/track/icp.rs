@@ -1,0 +1,188 @@
+//! One step of projective point-to-plane ICP (KinectFusion): associate each
+//! frame point with the model point seen through the same pixel, build the
+//! 6×6 normal equations of the linearised point-to-plane error, solve.
+
+use super::pyramid::Level;
+use crate::camera::Pose;
+use crate::linalg::{cholesky_solve, symmetric_eigen};
+use glam::{Quat, Vec3};
+use rayon::prelude::*;
+
+/// Which associations count as the same surface.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Association {
+    /// Largest distance between a frame point and its model point (metres).
+    pub max_distance: f32,
+    /// Smallest cosine of the angle between their normals.
+    pub min_normal_cos: f32,
+}
+
+/// The normal equations `A·x = -b` of one ICP iteration, summed over the
+/// inlier associations (upper triangle of `A` packed row by row).
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub struct Equations {
+    ata: [f64; 21],
+    atb: [f64; 6],
+    /// Sum of squared point-to-plane errors of the inliers.
+    pub squared_error: f64,
+    /// Sum of squared distances of the inliers from the model camera, for
+    /// putting rotations and translations on one scale.
+    pub squared_range: f64,
+    /// Associations accepted.
+    pub inliers: usize,
+    /// Frame points that had a normal (the candidates).
+    pub candidates: usize,
+}
+
+impl Equations {
+    fn add(&mut self, j: [f32; 6], e: f32, range2: f32) {
+        let j = j.map(f64::from);
+        let e = f64::from(e);
+        let mut k = 0;
+        for r in 0..6 {
+            for c in r..6 {
+                self.ata[k] += j[r] * j[c];
+                k += 1;
+            }
+            self.atb[r] += j[r] * e;
+        }
+        self.squared_error += e * e;
+        self.squared_range += f64::from(range2);
+        self.inliers += 1;
+    }
+
+    fn merge(mut self, other: Equations) -> Equations {
+        for (a, b) in self.ata.iter_mut().zip(other.ata) {
+            *a += b;
+        }
+        for (a, b) in self.atb.iter_mut().zip(other.atb) {
+            *a += b;
+        }
+        self.squared_error += other.squared_error;
+        self.squared_range += other.squared_range;
+        self.inliers += other.inliers;
+        self.candidates += other.candidates;
+        self
+    }
+
+    /// The full symmetric matrix `A`.
+    #[allow(clippy::needless_range_loop)] // Row and column indices of a packed triangle.
+    pub fn matrix(&self) -> [[f64; 6]; 6] {
+        let mut a = [[0.0; 6]; 6];
+        let mut k = 0;
+        for r in 0..6 {
+            for c in r..6 {
+                a[r][c] = self.ata[k];
+                a[c][r] = self.ata[k];
+                k += 1;
+            }
+        }
+        a
+    }
+
+    /// Root mean square point-to-plane error of the inliers (metres).
+    pub fn rms(&self) -> f64 {
+        (self.squared_error / self.inliers.max(1) as f64).sqrt()
+    }
+
+    /// How well the inliers pin down all six degrees of freedom: the
+    /// smallest eigenvalue of the per-inlier mean of `A`, with rotations
+    /// scaled by the points' RMS range so that both halves are in metres.
+    /// 1/3 for three orthogonal planes filling the view, near 0 for a
+    /// single plane (which leaves two translations and a rotation free).
+    pub fn conditioning(&self) -> f64 {
+        if self.inliers == 0 {
+            return 0.0;
+        }
+        let n = self.inliers as f64;
+        let range = (self.squared_range / n).sqrt().max(1e-6);
+        let scale = [1.0 / range, 1.0 / range, 1.0 / range, 1.0, 1.0, 1.0];
+        let mut a = self.matrix();
+        for (r, row) in a.iter_mut().enumerate() {
+            for (c, v) in row.iter_mut().enumerate() {
+                *v *= scale[r] * scale[c] / n;
+            }
+        }
+        symmetric_eigen(&a).0[0]
+    }
+
+    /// The motion (rotation ω as a scaled axis, translation t) minimising
+    /// the linearised error; `None` for a singular system.
+    pub fn solve(&self) -> Option<([f64; 3], [f64; 3])> {
+        let b = self.atb.map(|v| -v);
+        let x = cholesky_solve(&self.matrix(), &b)?;
+        Some(([x[0], x[1], x[2]], [x[3], x[4], x[5]]))
+    }
+}
+
+/// Builds the normal equations for moving `frame` (its camera-space points)
+/// onto `model` (camera-space points of the model camera), where
+/// `frame_to_model` is the current estimate of the frame camera in the
+/// model camera's axes.
+pub fn equations(
+    frame: &Level,
+    model: &Level,
+    frame_to_model: &Pose,
+    assoc: &Association,
+) -> Equations {
+    let (w, _) = frame.size();
+    let (mw, mh) = model.size();
+    let Some(mk) = model.intrinsics else {
+        return Equations::default();
+    };
+    let max_d2 = assoc.max_distance * assoc.max_distance;
+    frame
+        .points
+        .par_chunks(w)
+        .zip(frame.normals.par_chunks(w))
+        .fold(Equations::default, |mut eq, (points, normals)| {
+            for (&p, &n) in points.iter().zip(normals) {
+                if n == Vec3::ZERO {
+                    continue;
+                }
+                eq.candidates += 1;
+                let p = frame_to_model.transform_point(p);
+                if p.z <= 0.0 {
+                    continue;
+                }
+                // Nearest pixel, rounding by truncation of the shifted
+                // coordinate (`round` is a library call on baseline x86-64).
+                let u = mk.fx * p.x / p.z + mk.cx + 0.5;
+                let v = mk.fy * p.y / p.z + mk.cy + 0.5;
+                if !(u >= 0.0 && v >= 0.0 && u < mw as f32 && v < mh as f32) {
+                    continue;
+                }
+                let i = v as usize * mw + u as usize;
+                let mn = model.normals[i];
+                if mn == Vec3::ZERO {
+                    continue;
+                }
+                let m = model.points[i];
+                let d = p - m;
+                if d.length_squared() > max_d2
+                    || frame_to_model.transform_vector(n).dot(mn) < assoc.min_normal_cos
+                {
+                    continue;
+                }
+                let r = p.cross(mn);
+                eq.add(
+                    [r.x, r.y, r.z, mn.x, mn.y, mn.z],
+                    d.dot(mn),
+                    p.length_squared(),
+                );
+            }
+            eq
+        })
+        .reduce(Equations::default, Equations::merge)
+}
+
+/// Applies a small motion (rotation ω as a scaled axis, translation t) on
+/// the left of `pose`: `x ↦ R(ω)·pose(x) + t`.
+pub fn apply_motion(pose: &Pose, omega: [f64; 3], t: [f64; 3]) -> Pose {
+    let w = Vec3::new(omega[0] as f32, omega[1] as f32, omega[2] as f32);
+    let rotation = glam::Mat3::from_quat(Quat::from_scaled_axis(w));
+    let motion = Pose::new(rotation, Vec3::new(t[0] as f32, t[1] as f32, t[2] as f32));
+    let moved = motion.compose(pose);
+    // Keep the rotation orthonormal as updates accumulate in f32.
+    Pose::from_quat(moved.quat(), moved.translation)
+}

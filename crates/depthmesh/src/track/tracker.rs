@@ -1,0 +1,410 @@
+//! Frame-to-model tracking: each frame is aligned by coarse-to-fine ICP
+//! against the map's prediction from the last good pose; a failed
+//! alignment is reported and never used.
+
+use super::filter::{Bilateral, BilateralParams};
+use super::icp::{apply_motion, equations, Association};
+use super::pyramid::{half, Pyramid};
+use crate::camera::{Intrinsics, Pose};
+use crate::error::{Error, Result};
+use crate::image::DepthImage;
+use crate::map::Mapper;
+use std::fmt;
+
+/// Pyramid levels; the coarsest is 1/4 of the full resolution.
+pub const LEVELS: usize = 3;
+
+/// Tracking parameters; the defaults are KinectFusion's where it has one.
+#[derive(Clone, Debug, PartialEq)]
+pub struct TrackerConfig {
+    /// ICP iterations per level, coarsest first.
+    pub iterations: [usize; LEVELS],
+    /// Associations farther apart are outliers (metres).
+    pub max_distance: f32,
+    /// Associations whose normals differ more are outliers (degrees).
+    pub max_normal_angle: f32,
+    /// Smoothing of the frame's depth before tracking (`None`: raw depth).
+    pub bilateral: Option<BilateralParams>,
+    /// Lost when fewer than this fraction of the frame's points are inliers.
+    pub min_inlier_fraction: f64,
+    /// Lost when the inliers' RMS point-to-plane error is larger (metres).
+    pub max_rms: f64,
+    /// Lost when the alignment leaves a direction this weakly constrained
+    /// (see [`super::icp::Equations::conditioning`]).
+    pub min_conditioning: f64,
+    /// Lost when the frame moved more than this from the prediction (metres).
+    pub max_jump: f32,
+    /// Iterations stop once an update moves points less than this (metres).
+    pub convergence: f64,
+    /// Predict the model view at half the frame's resolution (a quarter of
+    /// the rays; every level of the frame still associates with it).
+    pub half_resolution_model: bool,
+}
+
+impl Default for TrackerConfig {
+    fn default() -> Self {
+        TrackerConfig {
+            iterations: [6, 3, 2],
+            max_distance: 0.1,
+            max_normal_angle: 20.0,
+            bilateral: Some(BilateralParams::default()),
+            min_inlier_fraction: 0.25,
+            max_rms: 0.02,
+            min_conditioning: 2e-3,
+            max_jump: 0.3,
+            convergence: 1e-5,
+            half_resolution_model: true,
+        }
+    }
+}
+
+impl TrackerConfig {
+    /// Rejects settings that cannot track.
+    pub fn validate(&self) -> Result<()> {
+        let positive = [
+            ("max_distance", f64::from(self.max_distance)),
+            ("max_normal_angle", f64::from(self.max_normal_angle)),
+            ("max_rms", self.max_rms),
+            ("max_jump", f64::from(self.max_jump)),
+        ];
+        for (name, v) in positive {
+            if !(v.is_finite() && v > 0.0) {
+                return Err(Error::parameter(name, format!("must be positive, got {v}")));
+            }
+        }
+        if self.iterations.iter().all(|&i| i == 0) {
+            return Err(Error::parameter(
+                "iterations",
+                "all levels have 0 iterations",
+            ));
+        }
+        if let Some(b) = &self.bilateral {
+            b.validate()?;
+        }
+        Ok(())
+    }
+}
+
+/// Why a frame could not be aligned.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub enum LostReason {
+    /// The map predicts nothing from the last good pose.
+    EmptyModel,
+    /// Too few frame points matched the model (fraction of candidates).
+    FewInliers(f64),
+    /// The matched points disagree with the model (RMS error, metres).
+    LargeError(f64),
+    /// The geometry does not constrain every direction, e.g. a single plane
+    /// (the conditioning figure).
+    Degenerate(f64),
+    /// The alignment jumped implausibly far from the prediction (metres).
+    Jump(f32),
+}
+
+impl fmt::Display for LostReason {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        match self {
+            LostReason::EmptyModel => write!(f, "the map predicts no surface from the last pose"),
+            LostReason::FewInliers(x) => {
+                write!(f, "only {:.0} % of the points match the map", x * 100.0)
+            }
+            LostReason::LargeError(e) => write!(f, "residual {:.1} mm is too large", e * 1e3),
+            LostReason::Degenerate(c) => {
+                write!(
+                    f,
+                    "the view does not constrain all six degrees of freedom (conditioning {c:.1e})"
+                )
+            }
+            LostReason::Jump(d) => {
+                write!(f, "the pose jumped {:.0} cm from the prediction", d * 100.0)
+            }
+        }
+    }
+}
+
+/// The outcome of tracking one frame.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Tracked {
+    /// The frame's pose, camera-to-world (the last good pose when lost).
+    pub pose: Pose,
+    /// `Some` when the frame could not be aligned and must not be fused.
+    pub lost: Option<LostReason>,
+    /// Fraction of the frame's points matched at the finest level.
+    pub inlier_fraction: f64,
+    /// RMS point-to-plane error of the matches at the finest level (metres).
+    pub rms: f64,
+    /// How well the view constrains the pose (see
+    /// [`super::icp::Equations::conditioning`]).
+    pub conditioning: f64,
+    /// ICP iterations run, all levels.
+    pub iterations: usize,
+}
+
+/// Frame-to-model ICP tracker with a constant-velocity motion model.
+#[derive(Debug)]
+pub struct Tracker {
+    config: TrackerConfig,
+    intrinsics: Intrinsics,
+    /// The camera model of the model view.
+    model_intrinsics: Intrinsics,
+    filter: Option<Bilateral>,
+    filtered: DepthImage,
+    frame: Pyramid,
+    model: Pyramid,
+    last_good: Pose,
+    /// Motion between the last two good frames (camera-to-camera).
+    velocity: Pose,
+    /// Frames lost since the last good one.
+    lost_streak: usize,
+}
+
+impl Tracker {
+    /// A tracker for frames from `intrinsics`, starting at `start`.
+    pub fn new(config: TrackerConfig, intrinsics: Intrinsics, start: Pose) -> Result<Self> {
+        config.validate()?;
+        intrinsics.validate()?;
+        Ok(Tracker {
+            filter: config.bilateral.map(Bilateral::new).transpose()?,
+            model_intrinsics: if config.half_resolution_model {
+                half(&intrinsics)
+            } else {
+                intrinsics
+            },
+            config,
+            intrinsics,
+            filtered: DepthImage::default(),
+            frame: Pyramid::default(),
+            model: Pyramid::default(),
+            last_good: start,
+            velocity: Pose::IDENTITY,
+            lost_streak: 0,
+        })
+    }
+
+    /// The last pose that was tracked successfully (or the start).
+    pub fn last_good(&self) -> Pose {
+        self.last_good
+    }
+
+    /// Aligns `depth` with what `map` predicts from the last good pose.
+    pub fn track(&mut self, depth: &DepthImage, map: &dyn Mapper) -> Tracked {
+        let model = map.render_depth(&self.model_intrinsics, &self.last_good);
+        self.track_against(depth, &model)
+    }
+
+    /// The camera model [`Tracker::track_against`] expects the model view in.
+    pub fn model_intrinsics(&self) -> Intrinsics {
+        self.model_intrinsics
+    }
+
+    /// Aligns `depth` with `model`, the map's depth seen from the last good
+    /// pose with [`Tracker::model_intrinsics`].
+    pub fn track_against(&mut self, depth: &DepthImage, model: &DepthImage) -> Tracked {
+        let k = self.intrinsics;
+        let input = match &self.filter {
+            Some(f) => {
+                f.apply(depth, &mut self.filtered);
+                &self.filtered
+            }
+            None => depth,
+        };
+        self.frame.build(input, &k, LEVELS);
+        self.model.build(model, &self.model_intrinsics, LEVELS);
+        let recovering = self.lost_streak > 0;
+        // After a loss the velocity means nothing; search wider around the
+        // last good pose instead.
+        let predicted = if recovering {
+            Pose::IDENTITY
+        } else {
+            self.velocity
+        };
+        let widen = if recovering { 2.0 } else { 1.0 };
+        let assoc = Association {
+            max_distance: self.config.max_distance * widen,
+            min_normal_cos: self.config.max_normal_angle.to_radians().cos(),
+        };
+        let mut relative = predicted;
+        let mut iterations = 0;
+        // The last system solved: the alignment is judged by it (its
+        // update, at convergence, is below the noise).
+        let mut eq = super::icp::Equations::default();
+        for (level, &count) in (0..LEVELS).rev().zip(&self.config.iterations) {
+            let extra = if recovering && level == LEVELS - 1 {
+                count
+            } else {
+                0
+            };
+            for _ in 0..count + extra {
+                eq = equations(
+                    &self.frame.levels[level],
+                    &self.model.levels[level],
+                    &relative,
+                    &assoc,
+                );
+                iterations += 1;
+                let Some((omega, t)) = eq.solve() else { break };
+                relative = apply_motion(&relative, omega, t);
+                let rotation = omega.iter().map(|w| w * w).sum::<f64>().sqrt();
+                let translation = t.iter().map(|v| v * v).sum::<f64>().sqrt();
+                // A rotation moves points by about ω × their range.
+                let range = (eq.squared_range / eq.inliers.max(1) as f64).sqrt();
+                if translation + rotation * range < self.config.convergence {
+                    break;
+                }
+            }
+        }
+        let inlier_fraction = eq.inliers as f64 / eq.candidates.max(1) as f64;
+        let rms = eq.rms();
+        let conditioning = eq.conditioning();
+        let jump = (relative.translation - predicted.translation).length();
+        let lost = if self.model.levels[0]
+            .normals
+            .iter()
+            .all(|n| *n == glam::Vec3::ZERO)
+        {
+            Some(LostReason::EmptyModel)
+        } else if inlier_fraction < self.config.min_inlier_fraction {
+            Some(LostReason::FewInliers(inlier_fraction))
+        } else if rms > self.config.max_rms {
+            Some(LostReason::LargeError(rms))
+        } else if conditioning < self.config.min_conditioning {
+            Some(LostReason::Degenerate(conditioning))
+        } else if jump > self.config.max_jump * widen {
+            Some(LostReason::Jump(jump))
+        } else {
+            None
+        };
+        let pose = match lost {
+            None => {
+                let pose = self.last_good.compose(&relative);
+                self.velocity = relative;
+                self.last_good = pose;
+                self.lost_streak = 0;
+                pose
+            }
+            Some(_) => {
+                self.velocity = Pose::IDENTITY;
+                self.lost_streak += 1;
+                self.last_good
+            }
+        };
+        Tracked {
+            pose,
+            lost,
+            inlier_fraction,
+            rms,
+            conditioning,
+            iterations,
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::sim::{NoiseModel, Scene, SceneOptions, SimulatedSensor};
+    use glam::Vec3;
+    use std::path::Path;
+
+    const ROOM: &str = include_str!("../../../../scenes/room.toml");
+
+    fn scene(text: &str) -> Scene {
+        Scene::parse(text, Path::new("test.toml"), &SceneOptions::default()).unwrap()
+    }
+
+    fn sensor(noise: NoiseModel) -> SimulatedSensor {
+        let k = Intrinsics::from_vertical_fov(320, 240, 60.0);
+        SimulatedSensor::new(k, 0.4, 6.0, noise, 1).unwrap()
+    }
+
+    /// Translation (metres) and rotation (degrees) between two poses.
+    fn pose_error(a: &Pose, b: &Pose) -> (f32, f32) {
+        let d = a.inverse().compose(b);
+        (d.translation.length(), d.rotation_angle().to_degrees())
+    }
+
+    /// Tracks `poses` (the first is given) against a perfect map: the scene
+    /// itself, rendered from the tracker's last good pose.
+    fn track_sequence(scene: &Scene, poses: &[Pose]) -> Vec<Tracked> {
+        let mut sensor = sensor(NoiseModel::None);
+        let mut tracker =
+            Tracker::new(TrackerConfig::default(), sensor.intrinsics, poses[0]).unwrap();
+        let mut model_sensor =
+            SimulatedSensor::new(tracker.model_intrinsics(), 0.4, 6.0, NoiseModel::None, 1)
+                .unwrap();
+        poses[1..]
+            .iter()
+            .map(|pose| {
+                let model = model_sensor.capture(scene, 1, &tracker.last_good()).depth;
+                let frame = sensor.capture(scene, 1, pose).depth;
+                tracker.track_against(&frame, &model)
+            })
+            .collect()
+    }
+
+    #[test]
+    fn follows_a_known_motion_within_a_millimetre_and_a_tenth_of_a_degree() {
+        let room = scene(ROOM);
+        // 2 cm and 1° per frame around the table, rising and tilting.
+        let poses: Vec<Pose> = (0..15)
+            .map(|i| {
+                let a = (i as f32 * 1.0).to_radians();
+                let eye = Vec3::new(2.0 * a.cos(), 1.3 + 0.005 * i as f32, 2.0 * a.sin());
+                Pose::look_at(eye, Vec3::new(0.0, 0.4 + 0.01 * i as f32, 0.0), Vec3::Y)
+            })
+            .collect();
+        for (tracked, truth) in track_sequence(&room, &poses).iter().zip(&poses[1..]) {
+            assert_eq!(tracked.lost, None);
+            let (t, r) = pose_error(&tracked.pose, truth);
+            assert!(t < 1e-3 && r < 0.1, "error {:.2} mm, {r:.3}°", t * 1e3);
+        }
+    }
+
+    #[test]
+    fn a_single_wall_is_reported_degenerate_instead_of_drifting() {
+        let wall = scene("[[object]]\nshape = \"box\"\nsize = [20.0, 20.0, 0.1]\n");
+        // Sliding along the wall, 2 m in front of it.
+        let poses: Vec<Pose> = (0..4)
+            .map(|i| {
+                let eye = Vec3::new(0.02 * i as f32, 0.0, 2.0);
+                Pose::look_at(eye, eye - Vec3::Z, Vec3::Y)
+            })
+            .collect();
+        let tracked = track_sequence(&wall, &poses);
+        for t in &tracked {
+            assert!(
+                matches!(t.lost, Some(LostReason::Degenerate(_))),
+                "{:?}",
+                t.lost
+            );
+            // The last good pose is kept: no drift, nothing non-finite.
+            assert_eq!(t.pose, poses[0]);
+        }
+        assert!(tracked[0].lost.unwrap().to_string().contains("six degrees"));
+    }
+
+    #[test]
+    fn an_empty_model_is_lost() {
+        let mut sensor = sensor(NoiseModel::None);
+        let room = scene(ROOM);
+        let pose = Pose::look_at(Vec3::new(2.0, 1.3, 0.0), Vec3::ZERO, Vec3::Y);
+        let mut tracker = Tracker::new(TrackerConfig::default(), sensor.intrinsics, pose).unwrap();
+        let frame = sensor.capture(&room, 1, &pose).depth;
+        let k = tracker.model_intrinsics();
+        let empty = DepthImage::new(k.width, k.height);
+        let t = tracker.track_against(&frame, &empty);
+        assert_eq!(t.lost, Some(LostReason::EmptyModel));
+        assert_eq!(t.pose, pose);
+    }
+
+    #[test]
+    fn rejects_bad_settings() {
+        let k = Intrinsics::from_vertical_fov(320, 240, 60.0);
+        let config = TrackerConfig {
+            max_distance: -1.0,
+            ..TrackerConfig::default()
+        };
+        let e = Tracker::new(config, k, Pose::IDENTITY).unwrap_err();
+        assert!(e.to_string().contains("max_distance"));
+    }
+}
