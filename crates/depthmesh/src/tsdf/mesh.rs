@@ -12,15 +12,10 @@
 //! seven blocks below it are re-meshed and the assembled mesh equals a full
 //! extraction.
 
-use super::{cases, voxel_index, TsdfVolume, BLOCK};
+use super::{cases, voxel_index, KeyMap, TsdfVolume, BLOCK};
 use crate::mesh::Mesh;
 use glam::{IVec3, Vec3};
 use rayon::prelude::*;
-use std::collections::HashMap;
-use std::hash::BuildHasherDefault;
-
-/// A map keyed by block coordinates with the volume's fast hash.
-type KeyMap<V> = HashMap<IVec3, V, BuildHasherDefault<super::KeyHasher>>;
 
 /// A reference to a vertex: the owning block as an offset (bit 0: +x, bit 1:
 /// +y, bit 2: +z from the referring block) and the edge within it.
@@ -169,43 +164,96 @@ impl MeshCache {
 
     /// The whole mesh: the blocks' pieces joined, in block-key order.
     pub fn assemble(&self) -> Mesh {
-        let mut keys: Vec<IVec3> = self.pieces.keys().copied().collect();
-        keys.sort_unstable_by_key(|k| (k.x, k.y, k.z));
-        let mut offsets: KeyMap<u32> = KeyMap::default();
-        offsets.reserve(keys.len());
-        let mut mesh = Mesh::default();
-        for k in &keys {
-            let p = &self.pieces[k];
-            offsets.insert(*k, mesh.positions.len() as u32);
-            mesh.positions.extend_from_slice(&p.positions);
-            mesh.normals.extend_from_slice(&p.normals);
-            mesh.colors.extend_from_slice(&p.colors);
-        }
-        for k in &keys {
-            let p = &self.pieces[k];
-            'triangles: for t in &p.triangles {
-                let mut tri = [0u32; 3];
-                for (slot, r) in tri.iter_mut().zip(t) {
-                    let owner = *k
-                        + IVec3::new(
-                            (r.owner & 1) as i32,
-                            ((r.owner >> 1) & 1) as i32,
-                            ((r.owner >> 2) & 1) as i32,
-                        );
-                    let (Some(piece), Some(&base)) = (self.pieces.get(&owner), offsets.get(&owner))
-                    else {
-                        continue 'triangles;
-                    };
-                    let Ok(local) = piece.edges.binary_search(&r.edge) else {
-                        continue 'triangles;
-                    };
-                    *slot = base + local as u32;
-                }
-                mesh.triangles.push(tri);
-            }
-        }
+        let keys = sorted_keys(&self.pieces);
+        join(&self.pieces, &keys, &keys)
+    }
+
+    /// The triangles of the cubes the blocks `keys` own, with only the
+    /// vertices they use (some belong to the blocks above).
+    pub fn assemble_blocks(&self, keys: &[IVec3]) -> Mesh {
+        let mut mesh = join(&self.pieces, &sorted_keys(&self.pieces), keys);
+        mesh.remove_unreferenced_vertices();
         mesh
     }
+
+    /// Drops the pieces of blocks that left the volume.
+    pub fn forget(&mut self, keys: &[IVec3]) {
+        for key in keys {
+            self.pieces.remove(key);
+        }
+    }
+
+    /// Voxels with a smaller weight count as unobserved.
+    pub fn min_weight(&self) -> u16 {
+        self.min_weight
+    }
+}
+
+/// The triangles of the cubes the blocks `keys` own, meshed afresh from the
+/// volume (with the blocks above them, which own some of their vertices),
+/// with only the vertices they use: exactly what a full extraction holds
+/// for these blocks.
+pub fn extract_blocks(volume: &TsdfVolume, keys: &[IVec3], min_weight: u16) -> Mesh {
+    let mut owners: Vec<IVec3> = keys
+        .iter()
+        .flat_map(|&k| (0..8).map(move |d| k + IVec3::new(d & 1, (d >> 1) & 1, (d >> 2) & 1)))
+        .filter(|k| volume.index().contains_key(k))
+        .collect();
+    owners.sort_unstable_by_key(|k| (k.x, k.y, k.z));
+    owners.dedup();
+    let pieces: KeyMap<BlockMesh> = owners
+        .par_iter()
+        .map(|&key| (key, mesh_block(volume, key, min_weight.max(1))))
+        .collect();
+    let mut mesh = join(&pieces, &owners, keys);
+    mesh.remove_unreferenced_vertices();
+    mesh
+}
+
+fn sorted_keys<V>(map: &KeyMap<V>) -> Vec<IVec3> {
+    let mut keys: Vec<IVec3> = map.keys().copied().collect();
+    keys.sort_unstable_by_key(|k| (k.x, k.y, k.z));
+    keys
+}
+
+/// Joins pieces: the vertices of the pieces `vertex_keys` (in that order),
+/// and the triangles of the pieces `triangle_keys` whose vertices are among them.
+fn join(pieces: &KeyMap<BlockMesh>, vertex_keys: &[IVec3], triangle_keys: &[IVec3]) -> Mesh {
+    let mut offsets: KeyMap<u32> = KeyMap::default();
+    offsets.reserve(vertex_keys.len());
+    let mut mesh = Mesh::default();
+    for k in vertex_keys {
+        let p = &pieces[k];
+        offsets.insert(*k, mesh.positions.len() as u32);
+        mesh.positions.extend_from_slice(&p.positions);
+        mesh.normals.extend_from_slice(&p.normals);
+        mesh.colors.extend_from_slice(&p.colors);
+    }
+    for k in triangle_keys {
+        let Some(p) = pieces.get(k) else {
+            continue;
+        };
+        'triangles: for t in &p.triangles {
+            let mut tri = [0u32; 3];
+            for (slot, r) in tri.iter_mut().zip(t) {
+                let owner = *k
+                    + IVec3::new(
+                        (r.owner & 1) as i32,
+                        ((r.owner >> 1) & 1) as i32,
+                        ((r.owner >> 2) & 1) as i32,
+                    );
+                let (Some(piece), Some(&base)) = (pieces.get(&owner), offsets.get(&owner)) else {
+                    continue 'triangles;
+                };
+                let Ok(local) = piece.edges.binary_search(&r.edge) else {
+                    continue 'triangles;
+                };
+                *slot = base + local as u32;
+            }
+            mesh.triangles.push(tri);
+        }
+    }
+    mesh
 }
 
 /// Meshes the edges and cubes block `key` owns.

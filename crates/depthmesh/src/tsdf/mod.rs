@@ -8,6 +8,7 @@
 //! see [`mesh`].
 
 pub mod cases;
+pub mod evict;
 pub mod mapper;
 pub mod mesh;
 pub mod raycast;
@@ -118,8 +119,11 @@ impl Hasher for KeyHasher {
     }
 }
 
+/// A map keyed by block coordinates with the fast key hash.
+pub type KeyMap<V> = HashMap<IVec3, V, BuildHasherDefault<KeyHasher>>;
+
 /// Block key → index into the block list.
-pub type BlockIndex = HashMap<IVec3, u32, BuildHasherDefault<KeyHasher>>;
+pub type BlockIndex = KeyMap<u32>;
 
 /// The sparse TSDF volume.
 #[derive(Debug)]
@@ -130,6 +134,8 @@ pub struct TsdfVolume {
     /// Per block: the frame that last changed it.
     changed_at: Vec<u32>,
     frames: u32,
+    /// Only blocks wholly within this distance of the camera are fused.
+    reach: Option<f32>,
     /// Scratch: block keys touched by the current frame.
     keys: Vec<IVec3>,
 }
@@ -144,6 +150,7 @@ impl TsdfVolume {
             index: BlockIndex::default(),
             changed_at: Vec::new(),
             frames: 0,
+            reach: None,
             keys: Vec::new(),
         })
     }
@@ -171,6 +178,21 @@ impl TsdfVolume {
     /// Per block, the frame number that last changed it (1-based; 0 = never).
     pub fn changed_at(&self) -> &[u32] {
         &self.changed_at
+    }
+
+    /// Fuse only into blocks that reach within `radius` metres of the
+    /// camera (KinfuLS's volume around the camera; see [`evict`]). Not
+    /// validated here: [`evict::ActiveRegion::new`] checks the radius.
+    pub fn set_reach(&mut self, radius: f32) {
+        self.reach = Some(radius);
+    }
+
+    /// Distance from `point` to the nearest point of block `key`.
+    #[inline]
+    pub fn block_distance(&self, key: IVec3, point: Vec3) -> f32 {
+        let side = self.config.voxel * BLOCK as f32;
+        let lo = key.as_vec3() * side;
+        point.clamp(lo, lo + side).distance(point)
     }
 
     /// Bytes held by the voxels (4 per voxel, 7 with colour).
@@ -301,6 +323,14 @@ impl TsdfVolume {
         }
         self.keys.par_sort_unstable_by_key(|k| (k.x, k.y, k.z));
         self.keys.dedup();
+        if let Some(radius) = self.reach {
+            let camera = pose.translation;
+            let keys = std::mem::take(&mut self.keys);
+            self.keys = keys
+                .into_iter()
+                .filter(|&k| self.block_distance(k, camera) <= radius)
+                .collect();
+        }
         for &key in &self.keys {
             if !self.index.contains_key(&key) {
                 self.index.insert(key, self.blocks.len() as u32);
@@ -311,6 +341,22 @@ impl TsdfVolume {
                     color: c.color.then(|| Box::new([[0; 3]; BLOCK_VOXELS])),
                 });
                 self.changed_at.push(0);
+            }
+        }
+    }
+
+    /// Frees the blocks with the given keys (keys not in the map are ignored).
+    /// Block indices change: the last block moves into each freed slot.
+    pub fn remove_blocks(&mut self, keys: &[IVec3]) {
+        for key in keys {
+            let Some(i) = self.index.remove(key) else {
+                continue;
+            };
+            let i = i as usize;
+            self.blocks.swap_remove(i);
+            self.changed_at.swap_remove(i);
+            if let Some(moved) = self.blocks.get(i) {
+                self.index.insert(moved.key, i as u32);
             }
         }
     }
