@@ -81,10 +81,14 @@ impl ActiveRegion {
     /// written blocks no resident block needs any more (also from `cache`).
     pub fn update(&mut self, volume: &mut TsdfVolume, cache: &mut MeshCache, camera: Vec3) -> Mesh {
         let frame = volume.frames();
-        let (index, changed_at) = (volume.index(), volume.changed_at());
+        let (index, changes) = (volume.index(), volume.changes());
+        let min_weight = cache.min_weight();
         // Revisited before eviction: the block changed since it was written.
-        self.written
-            .retain(|k, at| index.get(k).is_some_and(|&i| changed_at[i as usize] <= *at));
+        self.written.retain(|k, at| {
+            index
+                .get(k)
+                .is_some_and(|&i| changes[i as usize].affecting(0, min_weight) <= *at)
+        });
         let far: Vec<bool> = volume
             .blocks()
             .par_iter()
@@ -101,7 +105,7 @@ impl ActiveRegion {
             .map(|(b, _)| b.key)
             .collect();
         write.sort_unstable_by_key(|k| (k.x, k.y, k.z));
-        let mesh = extract_blocks(volume, &write, cache.min_weight());
+        let mesh = extract_blocks(volume, &write, min_weight);
         self.written.extend(write.iter().map(|&k| (k, frame)));
         let written = &self.written;
         let evict: Vec<IVec3> = written

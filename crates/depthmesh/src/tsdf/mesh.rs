@@ -134,14 +134,16 @@ impl MeshCache {
         }
     }
 
-    /// Re-meshes the blocks changed since the last update and the seven
-    /// blocks below each; returns how many blocks were meshed.
+    /// Re-meshes the blocks whose input changed since the last update: a
+    /// changed block, and those of the seven blocks below it whose border
+    /// with it changed; returns how many blocks were meshed.
     pub fn update(&mut self, volume: &TsdfVolume) -> usize {
         let mut dirty: Vec<IVec3> = Vec::new();
-        for (block, &changed) in volume.blocks().iter().zip(volume.changed_at()) {
-            if changed > self.frame {
-                for d in 0..8 {
-                    let below = block.key - IVec3::new(d & 1, (d >> 1) & 1, (d >> 2) & 1);
+        for (block, changes) in volume.blocks().iter().zip(volume.changes()) {
+            for d in 0..8 {
+                if changes.affecting(d, self.min_weight) > self.frame {
+                    let below = block.key
+                        - IVec3::new(d as i32 & 1, (d as i32 >> 1) & 1, (d as i32 >> 2) & 1);
                     if volume.index().contains_key(&below) {
                         dirty.push(below);
                     }
@@ -256,55 +258,93 @@ fn join(pieces: &KeyMap<BlockMesh>, vertex_keys: &[IVec3], triangle_keys: &[IVec
     mesh
 }
 
+/// Whether block `key` may own a vertex or a triangle: an observed voxel of
+/// it differs in sign from another observed voxel of it or of the lowest
+/// layer of a neighbour above (all that its edges and cubes reach). Most
+/// blocks of the truncation band lie wholly in front of or behind the
+/// surface; this spares them the gathering.
+fn has_surface(volume: &TsdfVolume, key: IVec3, min_weight: u16) -> bool {
+    let signs = |block: &super::Block, range: [usize; 3]| {
+        let (mut inside, mut outside) = (false, false);
+        for z in 0..range[2] {
+            for y in 0..range[1] {
+                let row = voxel_index(0, y, z);
+                for i in row..row + range[0] {
+                    let observed = block.weight[i] >= min_weight;
+                    inside |= observed & (block.tsdf[i] < 0);
+                    outside |= observed & (block.tsdf[i] >= 0);
+                }
+            }
+        }
+        (inside, outside)
+    };
+    let Some(&own) = volume.index().get(&key) else {
+        return false;
+    };
+    let (inside, outside) = signs(&volume.blocks()[own as usize], [BLOCK; 3]);
+    if inside && outside {
+        return true;
+    }
+    if !(inside || outside) {
+        // Every edge and cube starts at an observed voxel of the block.
+        return false;
+    }
+    (1..8).any(|d| {
+        let offset = IVec3::new(d & 1, (d >> 1) & 1, (d >> 2) & 1);
+        volume.index().get(&(key + offset)).is_some_and(|&i| {
+            let range = offset.to_array().map(|o| if o == 0 { BLOCK } else { 1 });
+            let (i_in, i_out) = signs(&volume.blocks()[i as usize], range);
+            (inside && i_out) || (outside && i_in)
+        })
+    })
+}
+
+/// Steps between neighbouring voxels of a gathered neighbourhood, per axis.
+const STEP: [usize; 3] = [1, G, G * G];
+
 /// Meshes the edges and cubes block `key` owns.
 fn mesh_block(volume: &TsdfVolume, key: IVec3, min_weight: u16) -> BlockMesh {
-    let n = Neighbourhood::gather(volume, key);
     let mut out = BlockMesh::default();
-    // Most blocks of the truncation band lie wholly in front of (or behind)
-    // the surface: with no sign change among their observed voxels (and the
-    // layer above them) there is nothing to mesh.
-    let (mut any_inside, mut any_outside) = (false, false);
-    for (&t, &w) in n.tsdf.iter().zip(&n.weight) {
-        if w >= min_weight {
-            any_inside |= t < 0.0;
-            any_outside |= t >= 0.0;
-        }
-    }
-    if !(any_inside && any_outside) {
+    if !has_surface(volume, key, min_weight) {
         return out;
     }
-    let observed = |v: IVec3| n.weight[Neighbourhood::at(v)] >= min_weight;
-    let value = |v: IVec3| n.tsdf[Neighbourhood::at(v)];
+    let n = Neighbourhood::gather(volume, key);
+    // Per gathered voxel: bit 0 observed, bit 1 inside (negative).
+    let state: Vec<u8> = n
+        .tsdf
+        .iter()
+        .zip(&n.weight)
+        .map(|(&t, &w)| u8::from(w >= min_weight) | u8::from(t < 0.0) << 1)
+        .collect();
     let b = BLOCK as i32;
     let voxel = volume.config().voxel;
+    let origin = volume.voxel_position(key, 0, 0, 0);
     // Vertices on the owned edges, in edge-id order.
     for z in 0..b {
         for y in 0..b {
             for x in 0..b {
                 let v = IVec3::new(x, y, z);
-                if !observed(v) {
+                let i = Neighbourhood::at(v);
+                if state[i] & 1 == 0 {
                     continue;
                 }
-                for axis in 0..3 {
-                    let w = v + IVec3::AXES[axis];
-                    if !observed(w) {
+                for (axis, step) in STEP.iter().enumerate() {
+                    let j = i + step;
+                    if state[j] & 1 == 0 || (state[i] ^ state[j]) & 2 == 0 {
                         continue;
                     }
-                    let (f0, f1) = (value(v), value(w));
-                    if (f0 < 0.0) == (f1 < 0.0) {
-                        continue;
-                    }
+                    let (f0, f1) = (n.tsdf[i], n.tsdf[j]);
                     let t = f0 / (f0 - f1);
-                    let p0 = volume.voxel_position(key, 0, 0, 0) + v.as_vec3() * voxel;
+                    let w = v + IVec3::AXES[axis];
                     out.edges
                         .push((voxel_index(x as usize, y as usize, z as usize) * 3 + axis) as u16);
-                    out.positions
-                        .push(p0 + IVec3::AXES[axis].as_vec3() * (t * voxel));
+                    out.positions.push(
+                        origin + v.as_vec3() * voxel + IVec3::AXES[axis].as_vec3() * (t * voxel),
+                    );
                     let g = n.gradient(v, min_weight).lerp(n.gradient(w, min_weight), t);
                     out.normals.push(g.normalize_or_zero());
                     if volume.config().color {
-                        let (c0, c1) =
-                            (n.color[Neighbourhood::at(v)], n.color[Neighbourhood::at(w)]);
+                        let (c0, c1) = (n.color[i], n.color[j]);
                         out.colors.push(std::array::from_fn(|ch| {
                             (f32::from(c0[ch]) + (f32::from(c1[ch]) - f32::from(c0[ch])) * t + 0.5)
                                 as u8
@@ -316,20 +356,20 @@ fn mesh_block(volume: &TsdfVolume, key: IVec3, min_weight: u16) -> BlockMesh {
     }
     // Triangles of the owned cubes.
     let table = cases::table();
+    let corner_step =
+        cases::CORNERS.map(|c| c[0] as usize + G * (c[1] as usize + G * c[2] as usize));
     for z in 0..b {
         for y in 0..b {
             for x in 0..b {
                 let base = IVec3::new(x, y, z);
-                let mut case = 0usize;
-                let mut all_observed = true;
-                for (i, c) in cases::CORNERS.iter().enumerate() {
-                    let v = base + IVec3::new(c[0] as i32, c[1] as i32, c[2] as i32);
-                    all_observed &= observed(v);
-                    if value(v) < 0.0 {
-                        case |= 1 << i;
-                    }
+                let i = Neighbourhood::at(base);
+                let (mut case, mut observed) = (0usize, 1u8);
+                for (c, step) in corner_step.iter().enumerate() {
+                    let s = state[i + step];
+                    observed &= s;
+                    case |= usize::from(s >> 1) << c;
                 }
-                if !all_observed {
+                if observed == 0 {
                     continue;
                 }
                 for tri in &table[case] {

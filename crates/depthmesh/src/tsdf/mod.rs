@@ -4,10 +4,11 @@
 //! Each voxel keeps its truncated distance as an `i16` (−1..1 scaled) and its
 //! weight as a `u16`: 4 bytes. Blocks are allocated along each pixel's
 //! truncation band and integrated in parallel, block by block; a block's
-//! mesh is rebuilt only when it (or a neighbour it shares cubes with) changed,
-//! see [`mesh`].
+//! mesh is rebuilt only when what it is meshed from changed (see [`changes`]
+//! and [`mesh`]).
 
 pub mod cases;
+pub mod changes;
 pub mod evict;
 pub mod mapper;
 pub mod mesh;
@@ -16,6 +17,7 @@ pub mod raycast;
 use crate::camera::{Intrinsics, Pose};
 use crate::error::{Error, Result};
 use crate::image::{ColorImage, DepthImage};
+use changes::Changes;
 use glam::{IVec3, Vec3};
 use rayon::prelude::*;
 use std::collections::HashMap;
@@ -131,8 +133,8 @@ pub struct TsdfVolume {
     config: TsdfConfig,
     blocks: Vec<Block>,
     index: BlockIndex,
-    /// Per block: the frame that last changed it.
-    changed_at: Vec<u32>,
+    /// Per block: the frames that last changed it, by who reads the change.
+    changes: Vec<Changes>,
     frames: u32,
     /// Only blocks wholly within this distance of the camera are fused.
     reach: Option<f32>,
@@ -148,7 +150,7 @@ impl TsdfVolume {
             config,
             blocks: Vec::new(),
             index: BlockIndex::default(),
-            changed_at: Vec::new(),
+            changes: Vec::new(),
             frames: 0,
             reach: None,
             keys: Vec::new(),
@@ -175,9 +177,9 @@ impl TsdfVolume {
         self.frames
     }
 
-    /// Per block, the frame number that last changed it (1-based; 0 = never).
-    pub fn changed_at(&self) -> &[u32] {
-        &self.changed_at
+    /// Per block, the frames that last changed it (1-based; 0 = never).
+    pub fn changes(&self) -> &[Changes] {
+        &self.changes
     }
 
     /// Fuse only into blocks that reach within `radius` metres of the
@@ -257,11 +259,11 @@ impl TsdfVolume {
         let k = *intrinsics;
         self.blocks
             .par_iter_mut()
-            .zip(self.changed_at.par_iter_mut())
+            .zip(self.changes.par_iter_mut())
             .zip(touched.par_iter())
             .filter(|(_, t)| **t)
-            .for_each(|((block, changed), _)| {
-                if integrate_block(
+            .for_each(|((block, changes), _)| {
+                let (readers, weights) = integrate_block(
                     block,
                     &config,
                     &k,
@@ -269,9 +271,8 @@ impl TsdfVolume {
                     depth,
                     color,
                     &reciprocal,
-                ) {
-                    *changed = frame;
-                }
+                );
+                changes.record(frame, readers, weights);
             });
         Ok(())
     }
@@ -340,7 +341,7 @@ impl TsdfVolume {
                     weight: Box::new([0; BLOCK_VOXELS]),
                     color: c.color.then(|| Box::new([[0; 3]; BLOCK_VOXELS])),
                 });
-                self.changed_at.push(0);
+                self.changes.push(Changes::default());
             }
         }
     }
@@ -354,7 +355,7 @@ impl TsdfVolume {
             };
             let i = i as usize;
             self.blocks.swap_remove(i);
-            self.changed_at.swap_remove(i);
+            self.changes.swap_remove(i);
             if let Some(moved) = self.blocks.get(i) {
                 self.index.insert(moved.key, i as u32);
             }
@@ -373,7 +374,9 @@ impl TsdfVolume {
     }
 }
 
-/// Fuses a depth image into one block; returns whether any voxel changed.
+/// Fuses a depth image into one block. Returns the readers (see
+/// [`changes::readers`]) of the voxels whose distance, colour or observed
+/// state changed, and whether any weight changed.
 fn integrate_block(
     block: &mut Block,
     c: &TsdfConfig,
@@ -382,7 +385,7 @@ fn integrate_block(
     depth: &DepthImage,
     color: Option<&ColorImage>,
     reciprocal: &[f32],
-) -> bool {
+) -> (u8, bool) {
     let v = c.voxel;
     let origin = (block.key * BLOCK as i32).as_vec3() * v;
     let base = world_to_camera.transform_point(origin);
@@ -390,7 +393,8 @@ fn integrate_block(
     let (dx, dy, dz) = (r.x_axis * v, r.y_axis * v, r.z_axis * v);
     let (w, h) = (depth.width as i32, depth.height as i32);
     let inv_trunc = 1.0 / c.truncation;
-    let mut changed = false;
+    let readers_of = changes::readers();
+    let (mut readers, mut weights) = (0u8, false);
     // A row of voxels at a time: first project all eight (branch-free, so it
     // vectorises), then update those that land on a measurement.
     let mut pixel = [0i32; BLOCK];
@@ -429,9 +433,13 @@ fn integrate_block(
                 let wt = block.weight[i];
                 // Running average in stored units: old + (new − old) / (w + 1),
                 // rounded half away from zero without a libm call.
-                let old = f32::from(block.tsdf[i]);
-                let fused = old + (t * TSDF_SCALE - old) * reciprocal[usize::from(wt)];
-                block.tsdf[i] = (fused + 0.5f32.copysign(fused)) as i16;
+                let old = block.tsdf[i];
+                let o = f32::from(old);
+                let fused = o + (t * TSDF_SCALE - o) * reciprocal[usize::from(wt)];
+                let new = (fused + 0.5f32.copysign(fused)) as i16;
+                block.tsdf[i] = new;
+                block.weight[i] = (wt + 1).min(c.max_weight);
+                let mut seen = new != old || wt == 0;
                 // Colour only near the surface, where it belongs to it.
                 if let (Some(colors), Some(image)) = (block.color.as_deref_mut(), color) {
                     if sdf.abs() < c.truncation {
@@ -440,12 +448,13 @@ fn integrate_block(
                             let o = f32::from(old[ch]);
                             (o + (f32::from(new[ch]) - o) * reciprocal[usize::from(wt)] + 0.5) as u8
                         });
+                        seen |= colors[i] != old;
                     }
                 }
-                block.weight[i] = (wt + 1).min(c.max_weight);
-                changed = true;
+                readers |= readers_of[i] & 0u8.wrapping_sub(u8::from(seen));
+                weights = true;
             }
         }
     }
-    changed
+    (readers, weights)
 }
