@@ -50,22 +50,25 @@ pub struct MeshCache {
 /// Side of the gathered neighbourhood: voxels 0..=9 of a block.
 const G: usize = BLOCK + 2;
 
-/// The distances and weights of a block and the first two voxel layers of
-/// its neighbours above, so the block can be meshed without further lookups.
+/// The distances (stored units) and observed/inside states of a block and
+/// the first two voxel layers of its neighbours above, so the block can be
+/// meshed without further lookups. Unscaled distances are fine: vertices
+/// interpolate ratios of them and normals are normalised.
 struct Neighbourhood {
-    tsdf: [f32; G * G * G],
-    weight: [u16; G * G * G],
-    color: [[u8; 3]; G * G * G],
+    tsdf: [i16; G * G * G],
+    /// Bit 0: observed (weight ≥ the minimum); bit 1: inside (negative).
+    state: [u8; G * G * G],
+    /// Colours, when the volume keeps them.
+    color: Option<Box<[[u8; 3]; G * G * G]>>,
 }
 
 impl Neighbourhood {
-    fn gather(volume: &TsdfVolume, key: IVec3) -> Self {
+    fn gather(volume: &TsdfVolume, key: IVec3, min_weight: u16) -> Self {
         let mut n = Neighbourhood {
-            tsdf: [0.0; G * G * G],
-            weight: [0; G * G * G],
-            color: [[0; 3]; G * G * G],
+            tsdf: [0; G * G * G],
+            state: [0; G * G * G],
+            color: volume.config().color.then(|| Box::new([[0; 3]; G * G * G])),
         };
-        let b = BLOCK as i32;
         for d in 0..8 {
             let offset = IVec3::new(d & 1, (d >> 1) & 1, (d >> 2) & 1);
             let Some(&i) = volume.index().get(&(key + offset)) else {
@@ -73,17 +76,22 @@ impl Neighbourhood {
             };
             let block = &volume.blocks()[i as usize];
             // Our own block whole; of a neighbour above, its first two layers.
-            let end = |o: i32| if o == 0 { b } else { 2 };
-            for z in 0..end(offset.z) {
-                for y in 0..end(offset.y) {
-                    for x in 0..end(offset.x) {
-                        let src = voxel_index(x as usize, y as usize, z as usize);
-                        let dst = Self::at(IVec3::new(x, y, z) + offset * b);
-                        n.tsdf[dst] = f32::from(block.tsdf[src]) / super::TSDF_SCALE;
-                        n.weight[dst] = block.weight[src];
-                        if let Some(c) = &block.color {
-                            n.color[dst] = c[src];
-                        }
+            let end = offset.to_array().map(|o| if o == 0 { BLOCK } else { 2 });
+            let start = Self::at(offset * BLOCK as i32);
+            for z in 0..end[2] {
+                for y in 0..end[1] {
+                    let (src, dst) = (voxel_index(0, y, z), start + y * G + z * G * G);
+                    let row = src..src + end[0];
+                    n.tsdf[dst..dst + end[0]].copy_from_slice(&block.tsdf[row.clone()]);
+                    for ((s, &w), &t) in n.state[dst..dst + end[0]]
+                        .iter_mut()
+                        .zip(&block.weight[row.clone()])
+                        .zip(&block.tsdf[row.clone()])
+                    {
+                        *s = u8::from(w >= min_weight) | u8::from(t < 0) << 1;
+                    }
+                    if let (Some(to), Some(from)) = (n.color.as_deref_mut(), &block.color) {
+                        to[dst..dst + end[0]].copy_from_slice(&from[row]);
                     }
                 }
             }
@@ -99,19 +107,16 @@ impl Neighbourhood {
 
     /// Distance gradient at block-local voxel `v` by central differences,
     /// one-sided where a neighbour was never observed.
-    fn gradient(&self, v: IVec3, min_weight: u16) -> Vec3 {
+    fn gradient(&self, v: IVec3) -> Vec3 {
+        let i = Self::at(v);
+        let sample = |j: usize| (self.state[j] & 1 != 0).then(|| f32::from(self.tsdf[j]));
+        let c = f32::from(self.tsdf[i]);
         let mut g = Vec3::ZERO;
-        for axis in 0..3 {
-            let e = IVec3::AXES[axis];
-            let sample = |p: IVec3| {
-                if !(p.cmpge(IVec3::ZERO).all() && p.cmplt(IVec3::splat(G as i32)).all()) {
-                    return None;
-                }
-                let i = Self::at(p);
-                (self.weight[i] >= min_weight).then(|| self.tsdf[i])
-            };
-            let c = self.tsdf[Self::at(v)];
-            let (lo, hi) = (sample(v - e), sample(v + e));
+        for (axis, step) in STEP.iter().enumerate() {
+            let lo = (v[axis] > 0).then(|| sample(i - step)).flatten();
+            let hi = ((v[axis] as usize) < G - 1)
+                .then(|| sample(i + step))
+                .flatten();
             g[axis] = match (lo, hi) {
                 (Some(l), Some(h)) => 0.5 * (h - l),
                 (None, Some(h)) => h - c,
@@ -308,43 +313,58 @@ fn mesh_block(volume: &TsdfVolume, key: IVec3, min_weight: u16) -> BlockMesh {
     if !has_surface(volume, key, min_weight) {
         return out;
     }
-    let n = Neighbourhood::gather(volume, key);
-    // Per gathered voxel: bit 0 observed, bit 1 inside (negative).
-    let state: Vec<u8> = n
-        .tsdf
-        .iter()
-        .zip(&n.weight)
-        .map(|(&t, &w)| u8::from(w >= min_weight) | u8::from(t < 0.0) << 1)
-        .collect();
+    let n = Neighbourhood::gather(volume, key, min_weight);
+    let state = &n.state;
+    // Bit rows along x (bit x = voxel x) of the observed and the inside
+    // voxels, per (y, z): sign changes are found a row at a time, and only
+    // the few edges and cubes the surface crosses are visited.
+    let mut observed = [[0u16; G]; G];
+    let mut inside = [[0u16; G]; G];
+    for z in 0..G {
+        for y in 0..G {
+            let row = &state[Neighbourhood::at(IVec3::new(0, y as i32, z as i32))..][..G];
+            for (x, &s) in row.iter().enumerate() {
+                observed[z][y] |= u16::from(s & 1) << x;
+                inside[z][y] |= u16::from(s >> 1) << x;
+            }
+        }
+    }
     let b = BLOCK as i32;
     let voxel = volume.config().voxel;
     let origin = volume.voxel_position(key, 0, 0, 0);
-    // Vertices on the owned edges, in edge-id order.
-    for z in 0..b {
-        for y in 0..b {
-            for x in 0..b {
-                let v = IVec3::new(x, y, z);
+    let own = (1u16 << BLOCK) - 1;
+    // Vertices on the owned edges, in edge-id order (voxel, then axis).
+    for z in 0..BLOCK {
+        for y in 0..BLOCK {
+            let (o, i) = (observed[z][y], inside[z][y]);
+            let crossing = [
+                o & (o >> 1) & (i ^ (i >> 1)),
+                o & observed[z][y + 1] & (i ^ inside[z][y + 1]),
+                o & observed[z + 1][y] & (i ^ inside[z + 1][y]),
+            ]
+            .map(|m| m & own);
+            let mut any = crossing[0] | crossing[1] | crossing[2];
+            while any != 0 {
+                let x = any.trailing_zeros() as usize;
+                any &= any - 1;
+                let v = IVec3::new(x as i32, y as i32, z as i32);
                 let i = Neighbourhood::at(v);
-                if state[i] & 1 == 0 {
-                    continue;
-                }
                 for (axis, step) in STEP.iter().enumerate() {
-                    let j = i + step;
-                    if state[j] & 1 == 0 || (state[i] ^ state[j]) & 2 == 0 {
+                    if crossing[axis] & (1 << x) == 0 {
                         continue;
                     }
-                    let (f0, f1) = (n.tsdf[i], n.tsdf[j]);
+                    let j = i + step;
+                    let (f0, f1) = (f32::from(n.tsdf[i]), f32::from(n.tsdf[j]));
                     let t = f0 / (f0 - f1);
                     let w = v + IVec3::AXES[axis];
-                    out.edges
-                        .push((voxel_index(x as usize, y as usize, z as usize) * 3 + axis) as u16);
+                    out.edges.push((voxel_index(x, y, z) * 3 + axis) as u16);
                     out.positions.push(
                         origin + v.as_vec3() * voxel + IVec3::AXES[axis].as_vec3() * (t * voxel),
                     );
-                    let g = n.gradient(v, min_weight).lerp(n.gradient(w, min_weight), t);
+                    let g = n.gradient(v).lerp(n.gradient(w), t);
                     out.normals.push(g.normalize_or_zero());
-                    if volume.config().color {
-                        let (c0, c1) = (n.color[i], n.color[j]);
+                    if let Some(color) = n.color.as_deref() {
+                        let (c0, c1) = (color[i], color[j]);
                         out.colors.push(std::array::from_fn(|ch| {
                             (f32::from(c0[ch]) + (f32::from(c1[ch]) - f32::from(c0[ch])) * t + 0.5)
                                 as u8
@@ -354,41 +374,47 @@ fn mesh_block(volume: &TsdfVolume, key: IVec3, min_weight: u16) -> BlockMesh {
             }
         }
     }
-    // Triangles of the owned cubes.
+    // Triangles of the owned cubes; per cube edge, its start corner and axis.
     let table = cases::table();
+    let edge_start = cases::EDGES.map(|(a, bb)| {
+        let (c, d) = (cases::CORNERS[a as usize], cases::CORNERS[bb as usize]);
+        let axis = (0..3)
+            .find(|&k| d[k] != c[k])
+            .expect("an edge runs along one axis");
+        (IVec3::new(c[0] as i32, c[1] as i32, c[2] as i32), axis)
+    });
     let corner_step =
         cases::CORNERS.map(|c| c[0] as usize + G * (c[1] as usize + G * c[2] as usize));
-    for z in 0..b {
-        for y in 0..b {
-            for x in 0..b {
-                let base = IVec3::new(x, y, z);
+    for z in 0..BLOCK {
+        for y in 0..BLOCK {
+            // The four rows of corners of this row of cubes, and each with
+            // its neighbour in x: all observed, and not all on one side.
+            let rows = [(z, y), (z, y + 1), (z + 1, y), (z + 1, y + 1)];
+            let (mut all_observed, mut any_inside, mut all_inside) = (own, 0u16, own);
+            for (rz, ry) in rows {
+                let (o, i) = (observed[rz][ry], inside[rz][ry]);
+                all_observed &= o & (o >> 1);
+                any_inside |= i | (i >> 1);
+                all_inside &= i & (i >> 1);
+            }
+            let mut cubes = all_observed & any_inside & !all_inside;
+            while cubes != 0 {
+                let x = cubes.trailing_zeros() as usize;
+                cubes &= cubes - 1;
+                let base = IVec3::new(x as i32, y as i32, z as i32);
                 let i = Neighbourhood::at(base);
-                let (mut case, mut observed) = (0usize, 1u8);
+                let mut case = 0usize;
                 for (c, step) in corner_step.iter().enumerate() {
-                    let s = state[i + step];
-                    observed &= s;
-                    case |= usize::from(s >> 1) << c;
-                }
-                if observed == 0 {
-                    continue;
+                    case |= usize::from(state[i + step] >> 1) << c;
                 }
                 for tri in &table[case] {
                     out.triangles.push(tri.map(|e| {
-                        let (a, bb) = cases::EDGES[e as usize];
-                        let c = cases::CORNERS[a as usize];
-                        let start = base + IVec3::new(c[0] as i32, c[1] as i32, c[2] as i32);
-                        let d = cases::CORNERS[bb as usize];
-                        let axis = (0..3)
-                            .find(|&k| d[k] != c[k])
-                            .expect("an edge runs along one axis");
-                        let owner = IVec3::new(
-                            (start.x >= b) as i32,
-                            (start.y >= b) as i32,
-                            (start.z >= b) as i32,
-                        );
-                        let local = start - owner * b;
+                        let (corner, axis) = edge_start[e as usize];
+                        let start = base + corner;
+                        let owner = start.cmpge(IVec3::splat(b));
+                        let local = start - IVec3::select(owner, IVec3::splat(b), IVec3::ZERO);
                         EdgeRef {
-                            owner: (owner.x | owner.y << 1 | owner.z << 2) as u8,
+                            owner: owner.bitmask() as u8,
                             edge: (voxel_index(
                                 local.x as usize,
                                 local.y as usize,
