@@ -226,40 +226,40 @@ fn sorted_keys<V>(map: &KeyMap<V>) -> Vec<IVec3> {
 /// Joins pieces: the vertices of the pieces `vertex_keys` (in that order),
 /// and the triangles of the pieces `triangle_keys` whose vertices are among them.
 fn join(pieces: &KeyMap<BlockMesh>, vertex_keys: &[IVec3], triangle_keys: &[IVec3]) -> Mesh {
-    let mut offsets: KeyMap<u32> = KeyMap::default();
+    let mut offsets: KeyMap<(u32, &BlockMesh)> = KeyMap::default();
     offsets.reserve(vertex_keys.len());
     let mut mesh = Mesh::default();
     for k in vertex_keys {
         let p = &pieces[k];
-        offsets.insert(*k, mesh.positions.len() as u32);
+        offsets.insert(*k, (mesh.positions.len() as u32, p));
         mesh.positions.extend_from_slice(&p.positions);
         mesh.normals.extend_from_slice(&p.normals);
         mesh.colors.extend_from_slice(&p.colors);
     }
-    for k in triangle_keys {
-        let Some(p) = pieces.get(k) else {
-            continue;
-        };
-        'triangles: for t in &p.triangles {
-            let mut tri = [0u32; 3];
-            for (slot, r) in tri.iter_mut().zip(t) {
-                let owner = *k
-                    + IVec3::new(
-                        (r.owner & 1) as i32,
-                        ((r.owner >> 1) & 1) as i32,
-                        ((r.owner >> 2) & 1) as i32,
-                    );
-                let (Some(piece), Some(&base)) = (pieces.get(&owner), offsets.get(&owner)) else {
-                    continue 'triangles;
-                };
-                let Ok(local) = piece.edges.binary_search(&r.edge) else {
-                    continue 'triangles;
-                };
-                *slot = base + local as u32;
-            }
-            mesh.triangles.push(tri);
-        }
-    }
+    // Block by block in parallel: the eight possible owners are looked up
+    // once per block, not once per corner.
+    let triangles: Vec<Vec<[u32; 3]>> = triangle_keys
+        .par_iter()
+        .map(|k| {
+            let Some(p) = pieces.get(k) else {
+                return Vec::new();
+            };
+            let owners: [Option<&(u32, &BlockMesh)>; 8] = std::array::from_fn(|d| {
+                let d = d as i32;
+                offsets.get(&(*k + IVec3::new(d & 1, (d >> 1) & 1, (d >> 2) & 1)))
+            });
+            let resolve = |r: &EdgeRef| {
+                let (base, piece) = owners[r.owner as usize]?;
+                let local = piece.edges.binary_search(&r.edge).ok()?;
+                Some(base + local as u32)
+            };
+            p.triangles
+                .iter()
+                .filter_map(|t| Some([resolve(&t[0])?, resolve(&t[1])?, resolve(&t[2])?]))
+                .collect()
+        })
+        .collect();
+    mesh.triangles = triangles.concat();
     mesh
 }
 
