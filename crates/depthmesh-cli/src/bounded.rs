@@ -10,6 +10,7 @@ use clap::Args;
 use depthmesh::eval::fraction_within;
 use depthmesh::mesh::chunk::DEFAULT_MAX_VERTICES;
 use depthmesh::mesh::chunk_files::ChunkFiles;
+use depthmesh::tsdf::evict::ActiveRegion;
 use depthmesh::tsdf::mapper::TsdfMapper;
 use depthmesh::Mesh;
 use serde_json::{json, Map, Value};
@@ -26,12 +27,14 @@ pub struct ActiveRadiusArgs {
 }
 
 impl ActiveRadiusArgs {
-    /// Rejects the flag with other maps, and with `--export`, which needs the
-    /// whole mesh in memory (export `mesh.ply` afterwards instead).
+    /// Rejects a radius that is not positive, the flag with other maps, and
+    /// with `--export`, which needs the whole mesh in memory (export
+    /// `mesh.ply` afterwards instead).
     pub fn check(&self, tsdf: bool, export: &RunExportArgs) -> Result<()> {
-        if self.active_radius.is_none() {
+        let Some(radius) = self.active_radius else {
             return Ok(());
-        }
+        };
+        ActiveRegion::new(radius)?;
         if !tsdf {
             bail!("--active-radius applies to --map tsdf only");
         }

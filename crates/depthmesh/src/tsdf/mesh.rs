@@ -8,9 +8,11 @@
 //! no cracks and no duplicates. A block's piece depends only on the voxels of
 //! the block and its seven neighbours above (cubes and edges reach one voxel
 //! up, normals two; at a block's lower faces normals use one-sided
-//! differences rather than reach down), so when a block changes, it and the
-//! seven blocks below it are re-meshed and the assembled mesh equals a full
-//! extraction.
+//! differences rather than reach down), so a block is re-meshed when its own
+//! voxels or the lowest two layers of a neighbour above changed as the mesh
+//! sees them (see [`super::changes`]), and the assembled mesh equals a full
+//! extraction. Blocks without a sign change are skipped before gathering,
+//! and sign changes are found a bit row at a time.
 
 use super::{cases, voxel_index, KeyMap, TsdfVolume, BLOCK};
 use crate::mesh::Mesh;
