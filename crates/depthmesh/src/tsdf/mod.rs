@@ -397,7 +397,8 @@ fn integrate_block(
     let (mut readers, mut weights) = (0u8, false);
     // A row of voxels at a time: first project all eight (branch-free, so it
     // vectorises), then update those that land on a measurement.
-    let mut pixel = [0i32; BLOCK];
+    let mut pixel = [0usize; BLOCK];
+    let mut inside = [false; BLOCK];
     let mut depth_z = [0.0f32; BLOCK];
     for z in 0..BLOCK {
         for y in 0..BLOCK {
@@ -409,23 +410,19 @@ fn integrate_block(
                 let inv = 1.0 / p.z;
                 let fu = k.fx * p.x * inv + k.cx + 0.5;
                 let fv = k.fy * p.y * inv + k.cy + 0.5;
-                let inside = p.z > 0.0 && fu >= 0.0 && fv >= 0.0 && fu < w as f32 && fv < h as f32;
-                // -1 marks a voxel that projects outside the image.
-                let index = (fv as i32) * w + fu as i32;
-                pixel[x] = if inside { index } else { -1 };
+                inside[x] = p.z > 0.0 && fu >= 0.0 && fv >= 0.0 && fu < w as f32 && fv < h as f32;
+                // Pixel 0 stands in outside the image; `inside` rules it out.
+                let index = ((fv as i32) * w + fu as i32) as usize;
+                pixel[x] = if inside[x] { index } else { 0 };
                 depth_z[x] = p.z;
             }
             for x in 0..BLOCK {
-                if pixel[x] < 0 {
-                    continue;
-                }
-                let px = pixel[x] as usize;
+                let px = pixel[x];
                 let d = depth.data[px];
-                if d <= 0.0 {
-                    continue;
-                }
                 let sdf = d - depth_z[x];
-                if sdf < -c.truncation {
+                // One branch for the three reasons to leave a voxel alone:
+                // which of them applies is hard to predict.
+                if !(inside[x] & (d > 0.0) & (sdf >= -c.truncation)) {
                     continue;
                 }
                 let t = (sdf * inv_trunc).min(1.0);
