@@ -335,16 +335,46 @@ fn mesh_block(volume: &TsdfVolume, key: IVec3, min_weight: u16) -> BlockMesh {
     let voxel = volume.config().voxel;
     let origin = volume.voxel_position(key, 0, 0, 0);
     let own = (1u16 << BLOCK) - 1;
-    // Vertices on the owned edges, in edge-id order (voxel, then axis).
+    // Per row of voxels, the edges the surface crosses (per axis) and the
+    // cubes it passes through — all corners observed, not all on one side —
+    // counted first so the piece's arrays are allocated once.
+    let mut crossings = [[[0u16; 3]; BLOCK]; BLOCK];
+    let mut cube_rows = [[0u16; BLOCK]; BLOCK];
+    let (mut vertices, mut cubes) = (0, 0);
     for z in 0..BLOCK {
         for y in 0..BLOCK {
             let (o, i) = (observed[z][y], inside[z][y]);
-            let crossing = [
+            crossings[z][y] = [
                 o & (o >> 1) & (i ^ (i >> 1)),
                 o & observed[z][y + 1] & (i ^ inside[z][y + 1]),
                 o & observed[z + 1][y] & (i ^ inside[z + 1][y]),
             ]
             .map(|m| m & own);
+            let rows = [(z, y), (z, y + 1), (z + 1, y), (z + 1, y + 1)];
+            let (mut all_observed, mut any_inside, mut all_inside) = (own, 0u16, own);
+            for (rz, ry) in rows {
+                let (o, i) = (observed[rz][ry], inside[rz][ry]);
+                all_observed &= o & (o >> 1);
+                any_inside |= i | (i >> 1);
+                all_inside &= i & (i >> 1);
+            }
+            cube_rows[z][y] = all_observed & any_inside & !all_inside;
+            vertices += crossings[z][y].map(u16::count_ones).iter().sum::<u32>() as usize;
+            cubes += cube_rows[z][y].count_ones() as usize;
+        }
+    }
+    out.edges.reserve_exact(vertices);
+    out.positions.reserve_exact(vertices);
+    out.normals.reserve_exact(vertices);
+    if n.color.is_some() {
+        out.colors.reserve_exact(vertices);
+    }
+    // Most crossed cubes hold one or two triangles.
+    out.triangles.reserve(2 * cubes);
+    // Vertices on the owned edges, in edge-id order (voxel, then axis).
+    for z in 0..BLOCK {
+        for y in 0..BLOCK {
+            let crossing = crossings[z][y];
             let mut any = crossing[0] | crossing[1] | crossing[2];
             while any != 0 {
                 let x = any.trailing_zeros() as usize;
@@ -387,19 +417,20 @@ fn mesh_block(volume: &TsdfVolume, key: IVec3, min_weight: u16) -> BlockMesh {
     });
     let corner_step =
         cases::CORNERS.map(|c| c[0] as usize + G * (c[1] as usize + G * c[2] as usize));
+    let edge_ref = |base: IVec3, e: u8| {
+        let (corner, axis) = edge_start[e as usize];
+        let start = base + corner;
+        let owner = start.cmpge(IVec3::splat(b));
+        let local = start - IVec3::select(owner, IVec3::splat(b), IVec3::ZERO);
+        EdgeRef {
+            owner: owner.bitmask() as u8,
+            edge: (voxel_index(local.x as usize, local.y as usize, local.z as usize) * 3 + axis)
+                as u16,
+        }
+    };
     for z in 0..BLOCK {
         for y in 0..BLOCK {
-            // The four rows of corners of this row of cubes, and each with
-            // its neighbour in x: all observed, and not all on one side.
-            let rows = [(z, y), (z, y + 1), (z + 1, y), (z + 1, y + 1)];
-            let (mut all_observed, mut any_inside, mut all_inside) = (own, 0u16, own);
-            for (rz, ry) in rows {
-                let (o, i) = (observed[rz][ry], inside[rz][ry]);
-                all_observed &= o & (o >> 1);
-                any_inside |= i | (i >> 1);
-                all_inside &= i & (i >> 1);
-            }
-            let mut cubes = all_observed & any_inside & !all_inside;
+            let mut cubes = cube_rows[z][y];
             while cubes != 0 {
                 let x = cubes.trailing_zeros() as usize;
                 cubes &= cubes - 1;
@@ -410,21 +441,11 @@ fn mesh_block(volume: &TsdfVolume, key: IVec3, min_weight: u16) -> BlockMesh {
                     case |= usize::from(state[i + step] >> 1) << c;
                 }
                 for tri in &table[case] {
-                    out.triangles.push(tri.map(|e| {
-                        let (corner, axis) = edge_start[e as usize];
-                        let start = base + corner;
-                        let owner = start.cmpge(IVec3::splat(b));
-                        let local = start - IVec3::select(owner, IVec3::splat(b), IVec3::ZERO);
-                        EdgeRef {
-                            owner: owner.bitmask() as u8,
-                            edge: (voxel_index(
-                                local.x as usize,
-                                local.y as usize,
-                                local.z as usize,
-                            ) * 3
-                                + axis) as u16,
-                        }
-                    }));
+                    out.triangles.push([
+                        edge_ref(base, tri[0]),
+                        edge_ref(base, tri[1]),
+                        edge_ref(base, tri[2]),
+                    ]);
                 }
             }
         }
