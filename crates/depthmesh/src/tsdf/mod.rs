@@ -307,9 +307,12 @@ impl TsdfVolume {
                     for s in 0..=samples {
                         let z = near + (far - near) * s as f32 / samples as f32;
                         let p = pose.translation + ray * z;
-                        keys.push((p / block_size).floor().as_ivec3());
+                        let key = (p / block_size).floor().as_ivec3();
+                        // Samples along a ray mostly stay in one block.
+                        if keys.last() != Some(&key) {
+                            keys.push(key);
+                        }
                     }
-                    keys.dedup();
                 }
                 // Neighbouring rays hit the same blocks: thin the row out
                 // here, in parallel, so the merge below sorts far fewer keys.
