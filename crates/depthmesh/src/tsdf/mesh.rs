@@ -372,9 +372,8 @@ fn mesh_block(volume: &TsdfVolume, key: IVec3, min_weight: u16) -> BlockMesh {
     // Most crossed cubes hold one or two triangles.
     out.triangles.reserve(2 * cubes);
     // Vertices on the owned edges, in edge-id order (voxel, then axis).
-    for z in 0..BLOCK {
-        for y in 0..BLOCK {
-            let crossing = crossings[z][y];
+    for (z, plane) in crossings.iter().enumerate() {
+        for (y, &crossing) in plane.iter().enumerate() {
             let mut any = crossing[0] | crossing[1] | crossing[2];
             while any != 0 {
                 let x = any.trailing_zeros() as usize;
@@ -428,9 +427,9 @@ fn mesh_block(volume: &TsdfVolume, key: IVec3, min_weight: u16) -> BlockMesh {
                 as u16,
         }
     };
-    for z in 0..BLOCK {
-        for y in 0..BLOCK {
-            let mut cubes = cube_rows[z][y];
+    for (z, plane) in cube_rows.iter().enumerate() {
+        for (y, &row) in plane.iter().enumerate() {
+            let mut cubes = row;
             while cubes != 0 {
                 let x = cubes.trailing_zeros() as usize;
                 cubes &= cubes - 1;
