@@ -4,7 +4,7 @@
 use std::path::Path;
 
 mod common;
-use common::{assert_fails_with, depthmesh, scratch};
+use common::{assert_fails_with, depthmesh, ok, scratch, summary};
 
 const TABLE: &str = "../../scenes/table.toml";
 
@@ -51,8 +51,7 @@ fn simulate_writes_the_run_contract() {
     );
     assert!(header.contains("novel_pixels"));
     assert_eq!(lines.count(), 3);
-    let summary: serde_json::Value =
-        serde_json::from_str(&std::fs::read_to_string(out.join("summary.json")).unwrap()).unwrap();
+    let summary = summary(&out);
     for key in [
         "frames",
         "seconds",
@@ -214,14 +213,8 @@ fn bounded_tsdf_run_writes_chunks_whose_union_is_the_mesh() {
         "--out",
         o,
     ];
-    let result = depthmesh(&args);
-    assert!(
-        result.status.success(),
-        "{}",
-        String::from_utf8_lossy(&result.stderr)
-    );
-    let summary: serde_json::Value =
-        serde_json::from_str(&std::fs::read_to_string(out.join("summary.json")).unwrap()).unwrap();
+    ok(&depthmesh(&args));
+    let summary = summary(&out);
     let count = |key: &str| {
         summary[key]
             .as_u64()
@@ -346,14 +339,8 @@ fn reconstruct_fuses_a_frames_folder() {
         "--out",
         out.to_str().unwrap(),
     ];
-    let result = depthmesh(&args);
-    assert!(
-        result.status.success(),
-        "{}",
-        String::from_utf8_lossy(&result.stderr)
-    );
-    let summary: serde_json::Value =
-        serde_json::from_str(&std::fs::read_to_string(out.join("summary.json")).unwrap()).unwrap();
+    ok(&depthmesh(&args));
+    let summary = summary(&out);
     for key in [
         "integrate_fps",
         "mesh_seconds",
