@@ -83,22 +83,36 @@ impl Neighbourhood {
             for z in 0..end[2] {
                 for y in 0..end[1] {
                     let (src, dst) = (voxel_index(0, y, z), start + y * G + z * G * G);
-                    let row = src..src + end[0];
-                    n.tsdf[dst..dst + end[0]].copy_from_slice(&block.tsdf[row.clone()]);
-                    for ((s, &w), &t) in n.state[dst..dst + end[0]]
-                        .iter_mut()
-                        .zip(&block.weight[row.clone()])
-                        .zip(&block.tsdf[row.clone()])
-                    {
-                        *s = u8::from(w >= min_weight) | u8::from(t < 0) << 1;
-                    }
-                    if let (Some(to), Some(from)) = (n.color.as_deref_mut(), &block.color) {
-                        to[dst..dst + end[0]].copy_from_slice(&from[row]);
+                    // Rows of a length known when compiling copy without a call.
+                    if end[0] == BLOCK {
+                        n.copy_row::<BLOCK>(block, src, dst, min_weight);
+                    } else {
+                        n.copy_row::<2>(block, src, dst, min_weight);
                     }
                 }
             }
         }
         n
+    }
+
+    /// Copies `LEN` voxels from `block` (from voxel `src`) to gathered voxel `dst` on.
+    #[inline(always)]
+    fn copy_row<const LEN: usize>(
+        &mut self,
+        block: &super::Block,
+        src: usize,
+        dst: usize,
+        min_weight: u16,
+    ) {
+        let tsdf: &[i16; LEN] = block.tsdf[src..src + LEN].try_into().expect("LEN voxels");
+        let weight: &[u16; LEN] = block.weight[src..src + LEN].try_into().expect("LEN voxels");
+        self.tsdf[dst..dst + LEN].copy_from_slice(tsdf);
+        for ((s, &w), &t) in self.state[dst..dst + LEN].iter_mut().zip(weight).zip(tsdf) {
+            *s = u8::from(w >= min_weight) | u8::from(t < 0) << 1;
+        }
+        if let (Some(to), Some(from)) = (self.color.as_deref_mut(), &block.color) {
+            to[dst..dst + LEN].copy_from_slice(&from[src..src + LEN]);
+        }
     }
 
     /// Index of block-local voxel `v` (each coordinate 0..=9).
