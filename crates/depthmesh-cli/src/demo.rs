@@ -96,6 +96,7 @@ pub fn run(args: &DemoArgs, quiet: bool) -> Result<()> {
             dashboard: true,
             out: args.out.join(e.name),
             export: Default::default(),
+            bounded: Default::default(),
         };
         let scene = simulate::load_scene(Path::new(e.source), Some(e.scene), &sim)?;
         let result = simulate::run_scene(&sim, &scene, quiet)?;

@@ -1,6 +1,7 @@
 //! `depthmesh`: depth images in, compact triangle-mesh maps out.
 
 mod bench;
+mod bounded;
 mod demo;
 mod draw;
 mod eval;

@@ -5,7 +5,8 @@
 use anyhow::{Context, Result};
 use depthmesh::atomic::write_atomic;
 use depthmesh::map::IntegrateReport;
-use depthmesh::mesh::ply::{write_ply, PlyFormat};
+use depthmesh::mesh::chunk_files::ChunkFiles;
+use depthmesh::mesh::ply::{write_ply, PlyFormat, PlyLayout};
 use depthmesh::trajectory::format_tum;
 use depthmesh::{Mesh, Pose};
 use serde_json::{Map, Value};
@@ -87,14 +88,45 @@ impl RunOutput {
         map: &str,
         mesh: &Mesh,
         map_bytes: usize,
+        summary: Map<String, Value>,
+    ) -> Result<Map<String, Value>> {
+        self.finish_with(map, PlyLayout::of(mesh), map_bytes, summary, |path| {
+            Ok(write_ply(path, mesh, PlyFormat::BinaryLittleEndian)?)
+        })
+    }
+
+    /// As [`RunOutput::finish`], for a map written out in chunks: `mesh.ply`
+    /// is the chunks joined with `rest`, streamed from the chunk files.
+    pub fn finish_chunked(
+        &self,
+        map: &str,
+        chunks: &ChunkFiles,
+        rest: &Mesh,
+        map_bytes: usize,
+        summary: Map<String, Value>,
+    ) -> Result<Map<String, Value>> {
+        let mut layout = chunks.written();
+        layout.vertices += rest.vertex_count();
+        layout.triangles += rest.triangle_count();
+        self.finish_with(map, layout, map_bytes, summary, |path| {
+            Ok(chunks.write_joined(path, rest)?)
+        })
+    }
+
+    fn finish_with(
+        &self,
+        map: &str,
+        mesh: PlyLayout,
+        map_bytes: usize,
         mut summary: Map<String, Value>,
+        write_mesh: impl FnOnce(&Path) -> Result<()>,
     ) -> Result<Map<String, Value>> {
         let summary_path = self.path("summary.json");
         if summary_path.exists() {
             std::fs::remove_file(&summary_path)
                 .with_context(|| format!("cannot replace {}", summary_path.display()))?;
         }
-        write_ply(&self.path("mesh.ply"), mesh, PlyFormat::BinaryLittleEndian)?;
+        write_mesh(&self.path("mesh.ply"))?;
         let tum = format_tum(&self.trajectory);
         write_atomic(&self.path("trajectory.txt"), |w| {
             w.write_all(tum.as_bytes())
@@ -114,8 +146,8 @@ impl RunOutput {
             .into(),
         );
         summary.insert("map".into(), map.into());
-        summary.insert("triangles".into(), mesh.triangle_count().into());
-        summary.insert("vertices".into(), mesh.vertex_count().into());
+        summary.insert("triangles".into(), mesh.triangles.into());
+        summary.insert("vertices".into(), mesh.vertices.into());
         summary.insert("map_bytes".into(), map_bytes.into());
         let text = serde_json::to_string_pretty(&summary)?;
         write_atomic(&summary_path, |w| writeln!(w, "{text}"))?;

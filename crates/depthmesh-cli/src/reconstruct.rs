@@ -1,6 +1,7 @@
 //! `depthmesh reconstruct`: a recorded depth sequence into a map, with the
 //! data's poses or tracked ones.
 
+use crate::bounded::ActiveRadiusArgs;
 use crate::draw::canvas::Canvas;
 use crate::draw::colormap::normal_shade;
 use crate::export::RunExportArgs;
@@ -82,11 +83,15 @@ pub struct ReconstructArgs {
     pub out: PathBuf,
     #[command(flatten)]
     pub export: RunExportArgs,
+    #[command(flatten)]
+    pub bounded: ActiveRadiusArgs,
 }
 
 /// Runs `reconstruct`.
 pub fn run(args: &ReconstructArgs, quiet: bool) -> Result<()> {
     args.export.check()?;
+    args.bounded
+        .check(args.map == ReconstructMap::Tsdf, &args.export)?;
     if args.stride == 0 {
         bail!("--stride must be at least 1");
     }
@@ -134,6 +139,10 @@ pub fn run(args: &ReconstructArgs, quiet: bool) -> Result<()> {
     };
     let mut raycast = RaycastImage::default();
     let mut out = RunOutput::create(&args.out)?;
+    let mut chunks = match &mut map {
+        RealMap::Tsdf(t) => args.bounded.start(t, &out)?,
+        RealMap::Mabdi(_) => None,
+    };
     let bar = progress::bar(dataset.len() as u64, "reconstruct", quiet);
     let mut poses = PoseSource::new(args.track, k);
     let mut frames = dataset.frames();
@@ -163,6 +172,11 @@ pub fn run(args: &ReconstructArgs, quiet: bool) -> Result<()> {
             total_vertices: stats.vertices,
             track: decided.track,
         });
+        if let RealMap::Tsdf(t) = &mut map {
+            if let Some(c) = &mut chunks {
+                c.after_frame(t)?;
+            }
+        }
         if let (RealMap::Tsdf(t), Some(pose)) = (&map, decided.pose) {
             if args.status_every > 0 && out.frames.len() % args.status_every == 0 {
                 write_status_image(t, &k, &pose, &mut raycast, &out.path("status"), frame.index)?;
@@ -203,6 +217,9 @@ pub fn run(args: &ReconstructArgs, quiet: bool) -> Result<()> {
                 "bytes_per_voxel".into(),
                 json!(v.voxel_bytes() as f64 / voxels.max(1) as f64),
             );
+            if let Some(c) = &mut chunks {
+                c.summarise(t, &mut summary)?;
+            }
             (t.name(), v.voxel_bytes(), mesh)
         }
         RealMap::Mabdi(m) => {
@@ -210,7 +227,10 @@ pub fn run(args: &ReconstructArgs, quiet: bool) -> Result<()> {
             (m.name(), bytes, m.mesh().clone())
         }
     };
-    out.finish(name, &mesh, bytes, summary)?;
+    match &chunks {
+        Some(c) => c.finish(&out, name, &mesh, bytes, summary)?,
+        None => out.finish(name, &mesh, bytes, summary)?,
+    };
     args.export.write(&mesh, &args.out)?;
     Ok(())
 }

@@ -1,6 +1,7 @@
 //! `depthmesh simulate`: a simulated sensor follows a path through a scene
 //! file and a map back-end builds the mesh.
 
+use crate::bounded::ActiveRadiusArgs;
 use crate::export::RunExportArgs;
 use crate::output::{FrameStats, RunOutput};
 use crate::progress;
@@ -88,6 +89,8 @@ pub struct SimulateArgs {
     pub out: PathBuf,
     #[command(flatten)]
     pub export: RunExportArgs,
+    #[command(flatten)]
+    pub bounded: ActiveRadiusArgs,
 }
 
 /// The back-ends `simulate` drives, kept concrete so the dashboard can show
@@ -170,6 +173,8 @@ pub fn run_scene(args: &SimulateArgs, scene: &Scene, quiet: bool) -> Result<RunS
         }
     }
     args.export.check()?;
+    args.bounded
+        .check(args.map == MapKind::Tsdf, &args.export)?;
     let poses = args.path.build(scene, args.iterations)?;
     let mut sensor = SimulatedSensor::kinect(args.noise, args.seed);
     let mut config = MabdiConfig::thesis(sensor.intrinsics, sensor.near, sensor.far);
@@ -195,6 +200,10 @@ pub fn run_scene(args: &SimulateArgs, scene: &Scene, quiet: bool) -> Result<RunS
         }
     };
     let mut out = RunOutput::create(&args.out)?;
+    let mut chunks = match &mut map {
+        SimMap::Tsdf(t) => args.bounded.start(t, &out)?,
+        _ => None,
+    };
     let mut dashboard = args
         .dashboard
         .then(|| {
@@ -231,6 +240,9 @@ pub fn run_scene(args: &SimulateArgs, scene: &Scene, quiet: bool) -> Result<RunS
             None => IntegrateReport::default(),
         };
         let ms = start.elapsed().as_secs_f64() * 1e3;
+        if let (SimMap::Tsdf(t), Some(c)) = (&mut map, &mut chunks) {
+            c.after_frame(t)?;
+        }
         let stats = map.mapper().stats();
         let new_triangles = report.new_elements;
         sensor_ms.push(captured);
@@ -260,17 +272,28 @@ pub fn run_scene(args: &SimulateArgs, scene: &Scene, quiet: bool) -> Result<RunS
     if let Some(d) = dashboard.as_ref() {
         d.element_plot(&out.frames, &out.path("elements.png"))?;
     }
+    let mut summary = Map::new();
+    if let (SimMap::Tsdf(t), Some(c)) = (&map, &mut chunks) {
+        c.summarise(t, &mut summary)?;
+    }
     let mapper = map.mapper();
     let stats = mapper.stats();
     let name = mapper.name();
     let mesh = mapper.mesh();
     // ~1M samples at most keeps the check to about a second on any map.
     let spacing = ((mesh.area() / 1.0e6).sqrt() as f32).max(0.002);
-    let within = fraction_within(mesh, &truth, 0.005, spacing);
-    let within_1cm = fraction_within(mesh, &truth, 0.01, spacing);
+    let (within, within_1cm) = match &chunks {
+        Some(c) => (
+            c.fraction_within(mesh, &truth, 0.005)?,
+            c.fraction_within(mesh, &truth, 0.01)?,
+        ),
+        None => (
+            fraction_within(mesh, &truth, 0.005, spacing),
+            fraction_within(mesh, &truth, 0.01, spacing),
+        ),
+    };
     let column = |name: &str| -> f64 { out.frames.iter().filter_map(|f| f.report.get(name)).sum() };
     let naive = column("naive_elements");
-    let mut summary = Map::new();
     summary.insert("scene".into(), scene.name.clone().into());
     summary.insert("iterations".into(), args.iterations.into());
     summary.insert("noise".into(), args.noise.to_string().into());
@@ -317,7 +340,10 @@ pub fn run_scene(args: &SimulateArgs, scene: &Scene, quiet: bool) -> Result<RunS
     // null for an empty map: there is no surface to judge.
     summary.insert("surface_within_5mm".into(), json!(within));
     summary.insert("surface_within_1cm".into(), json!(within_1cm));
-    let summary = out.finish(name, mesh, stats.bytes, summary)?;
+    let summary = match &chunks {
+        Some(c) => c.finish(&out, name, mesh, stats.bytes, summary)?,
+        None => out.finish(name, mesh, stats.bytes, summary)?,
+    };
     args.export.write(mesh, &args.out)?;
     Ok(RunSummary { summary })
 }

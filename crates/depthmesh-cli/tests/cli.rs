@@ -4,7 +4,7 @@
 use std::path::Path;
 
 mod common;
-use common::{assert_fails_with, depthmesh, scratch};
+use common::{assert_fails_with, depthmesh, ok, scratch, summary};
 
 const TABLE: &str = "../../scenes/table.toml";
 
@@ -51,8 +51,7 @@ fn simulate_writes_the_run_contract() {
     );
     assert!(header.contains("novel_pixels"));
     assert_eq!(lines.count(), 3);
-    let summary: serde_json::Value =
-        serde_json::from_str(&std::fs::read_to_string(out.join("summary.json")).unwrap()).unwrap();
+    let summary = summary(&out);
     for key in [
         "frames",
         "seconds",
@@ -162,6 +161,73 @@ fn nonsensical_parameters_are_rejected() {
         &["--scene", TABLE, "--path", "tum:no-such-trajectory.txt"],
         &["no-such-trajectory.txt"],
     );
+    for radius in [
+        "--active-radius=0",
+        "--active-radius=-2",
+        "--active-radius=nan",
+    ] {
+        rejects(
+            "radius",
+            &["--scene", TABLE, "--map", "tsdf", radius],
+            &["--active-radius"],
+        );
+    }
+    rejects(
+        "radius-mabdi",
+        &["--scene", TABLE, "--active-radius", "3"],
+        &["--active-radius", "tsdf"],
+    );
+    rejects(
+        "radius-export",
+        &[
+            "--scene",
+            TABLE,
+            "--map",
+            "tsdf",
+            "--active-radius",
+            "3",
+            "--export",
+            "glb",
+        ],
+        &["--export"],
+    );
+}
+
+#[test]
+fn bounded_tsdf_run_writes_chunks_whose_union_is_the_mesh() {
+    let out = scratch("bounded");
+    let o = out.to_str().unwrap();
+    let args = [
+        "simulate",
+        "--scene",
+        TABLE,
+        "--map",
+        "tsdf",
+        "--voxel",
+        "0.05",
+        "--iterations",
+        "6",
+        "--active-radius",
+        "2.5",
+        "--quiet",
+        "--out",
+        o,
+    ];
+    ok(&depthmesh(&args));
+    let summary = summary(&out);
+    let count = |key: &str| {
+        summary[key]
+            .as_u64()
+            .unwrap_or_else(|| panic!("summary lacks {key}"))
+    };
+    assert!(count("evicted_blocks") > 0 && count("chunks") > 0 && count("peak_blocks") > 0);
+    let chunks: Vec<_> = std::fs::read_dir(out.join("chunks")).unwrap().collect();
+    assert_eq!(chunks.len() as u64, count("chunks"));
+    let mesh = depthmesh::mesh::io::read_mesh(&out.join("mesh.ply")).unwrap();
+    assert_eq!(mesh.triangle_count() as u64, count("triangles"));
+    let first = depthmesh::mesh::io::read_mesh(&out.join("chunks/chunk-000001.ply")).unwrap();
+    assert!(first.triangle_count() > 0 && first.triangle_count() < mesh.triangle_count());
+    std::fs::remove_dir_all(out).unwrap();
 }
 
 #[test]
@@ -273,14 +339,8 @@ fn reconstruct_fuses_a_frames_folder() {
         "--out",
         out.to_str().unwrap(),
     ];
-    let result = depthmesh(&args);
-    assert!(
-        result.status.success(),
-        "{}",
-        String::from_utf8_lossy(&result.stderr)
-    );
-    let summary: serde_json::Value =
-        serde_json::from_str(&std::fs::read_to_string(out.join("summary.json")).unwrap()).unwrap();
+    ok(&depthmesh(&args));
+    let summary = summary(&out);
     for key in [
         "integrate_fps",
         "mesh_seconds",

@@ -128,18 +128,41 @@ fn box_is_within_half_a_voxel_without_duplicates() {
 
 #[test]
 fn incremental_meshing_equals_full_extraction() {
+    // Weight 1 re-meshes by the changes fusion records; weight 2 by any
+    // weight change.
+    for min_weight in [1, 2] {
+        let mut volume = TsdfVolume::new(TsdfConfig::new(0.02)).unwrap();
+        let mut incremental = MeshCache::new(min_weight);
+        scan(sphere_hit(0.3), 5, &mut volume, &mut incremental);
+        let mut full = MeshCache::new(min_weight);
+        full.update(&volume);
+        assert_eq!(incremental.assemble(), full.assemble());
+        // A frame that changes nothing re-meshes nothing.
+        let k = Intrinsics::from_vertical_fov(16, 12, 60.0);
+        volume
+            .integrate(&DepthImage::new(16, 12), None, &k, &Pose::IDENTITY)
+            .unwrap();
+        assert_eq!(incremental.update(&volume), 0);
+    }
+}
+
+#[test]
+fn free_space_seen_again_is_not_re_meshed() {
+    // A wall 1 m ahead, seen twice from the same pose: the second frame
+    // leaves every distance as it was (the same measurement averaged in),
+    // so nothing needs meshing again.
+    let k = Intrinsics::from_vertical_fov(64, 48, 60.0);
+    let mut depth = DepthImage::new(64, 48);
+    depth.data.fill(1.0);
     let mut volume = TsdfVolume::new(TsdfConfig::new(0.02)).unwrap();
-    let mut incremental = MeshCache::new(1);
-    scan(sphere_hit(0.3), 5, &mut volume, &mut incremental);
+    let mut cache = MeshCache::new(1);
+    volume.integrate(&depth, None, &k, &Pose::IDENTITY).unwrap();
+    assert!(cache.update(&volume) > 0);
+    volume.integrate(&depth, None, &k, &Pose::IDENTITY).unwrap();
+    assert_eq!(cache.update(&volume), 0);
     let mut full = MeshCache::new(1);
     full.update(&volume);
-    assert_eq!(incremental.assemble(), full.assemble());
-    // A frame that changes nothing re-meshes nothing.
-    let k = Intrinsics::from_vertical_fov(16, 12, 60.0);
-    volume
-        .integrate(&DepthImage::new(16, 12), None, &k, &Pose::IDENTITY)
-        .unwrap();
-    assert_eq!(incremental.update(&volume), 0);
+    assert_eq!(cache.assemble(), full.assemble());
 }
 
 #[test]

@@ -31,6 +31,12 @@ pub fn ok(output: &Output) {
     );
 }
 
+/// The `summary.json` a run wrote into `out`.
+#[allow(dead_code)] // not every test file needs it
+pub fn summary(out: &std::path::Path) -> serde_json::Value {
+    serde_json::from_str(&std::fs::read_to_string(out.join("summary.json")).unwrap()).unwrap()
+}
+
 /// The command failed with a message containing every one of `needles`, and no panic.
 pub fn assert_fails_with(output: &Output, needles: &[&str]) {
     let stderr = String::from_utf8_lossy(&output.stderr);

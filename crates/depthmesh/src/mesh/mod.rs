@@ -2,6 +2,7 @@
 
 pub mod align;
 pub mod chunk;
+pub mod chunk_files;
 pub mod glb;
 pub mod io;
 pub mod obj;

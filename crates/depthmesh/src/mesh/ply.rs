@@ -67,95 +67,197 @@ pub fn write_ply(path: &Path, mesh: &Mesh, format: PlyFormat) -> Result<()> {
 pub fn write_ply_to<W: Write>(mut w: W, mesh: &Mesh, format: PlyFormat) -> std::io::Result<()> {
     mesh.check()
         .map_err(|m| std::io::Error::new(std::io::ErrorKind::InvalidInput, m))?;
-    if mesh.positions.len() > i32::MAX as usize {
-        return Err(std::io::Error::new(
-            std::io::ErrorKind::InvalidInput,
-            "too many vertices for PLY int indices",
-        ));
-    }
-    let has_normals = !mesh.normals.is_empty();
-    let has_colors = !mesh.colors.is_empty();
-    let mut head = String::from("ply\n");
-    head.push_str(match format {
-        PlyFormat::BinaryLittleEndian => "format binary_little_endian 1.0\n",
-        PlyFormat::Ascii => "format ascii 1.0\n",
-    });
-    head.push_str("comment written by depthmesh\n");
-    head.push_str(&format!("element vertex {}\n", mesh.positions.len()));
-    head.push_str("property float x\nproperty float y\nproperty float z\n");
-    if has_normals {
-        head.push_str("property float nx\nproperty float ny\nproperty float nz\n");
-    }
-    if has_colors {
-        head.push_str("property uchar red\nproperty uchar green\nproperty uchar blue\n");
-    }
-    head.push_str(&format!("element face {}\n", mesh.triangles.len()));
-    head.push_str("property list uchar int vertex_indices\nend_header\n");
-    w.write_all(head.as_bytes())?;
-
-    // Values go into one reusable buffer that is handed to the writer in large
-    // blocks: a write call per value would dominate the cost.
-    const FLUSH_AT: usize = 1 << 20;
-    let mut buf: Vec<u8> = Vec::with_capacity(FLUSH_AT + 256);
+    let layout = PlyLayout::of(mesh);
+    layout.write_header(&mut w, format)?;
+    let mut buf = Vec::with_capacity(FLUSH_AT + 256);
     match format {
         PlyFormat::BinaryLittleEndian => {
-            for (i, p) in mesh.positions.iter().enumerate() {
-                for v in p.to_array() {
-                    buf.extend_from_slice(&v.to_le_bytes());
-                }
-                if has_normals {
-                    for v in mesh.normals[i].to_array() {
-                        buf.extend_from_slice(&v.to_le_bytes());
-                    }
-                }
-                if has_colors {
-                    buf.extend_from_slice(&mesh.colors[i]);
-                }
-                if buf.len() >= FLUSH_AT {
-                    w.write_all(&buf)?;
-                    buf.clear();
-                }
-            }
-            for t in &mesh.triangles {
-                buf.push(3);
-                for i in t {
-                    buf.extend_from_slice(&i.to_le_bytes());
-                }
-                if buf.len() >= FLUSH_AT {
-                    w.write_all(&buf)?;
-                    buf.clear();
-                }
-            }
+            layout.write_vertices(&mut w, &mut buf, mesh)?;
+            write_faces(&mut w, &mut buf, mesh, 0)?;
         }
         PlyFormat::Ascii => {
             for (i, p) in mesh.positions.iter().enumerate() {
                 // `{}` prints the shortest text that parses back to the same
                 // f32, so ASCII files round-trip exactly.
                 write!(buf, "{} {} {}", p.x, p.y, p.z)?;
-                if has_normals {
+                if layout.normals {
                     let n = mesh.normals[i];
                     write!(buf, " {} {} {}", n.x, n.y, n.z)?;
                 }
-                if has_colors {
+                if layout.colors {
                     let [r, g, b] = mesh.colors[i];
                     write!(buf, " {r} {g} {b}")?;
                 }
                 buf.push(b'\n');
-                if buf.len() >= FLUSH_AT {
-                    w.write_all(&buf)?;
-                    buf.clear();
-                }
+                flush_full(&mut w, &mut buf)?;
             }
             for [a, b, c] in &mesh.triangles {
                 writeln!(buf, "3 {a} {b} {c}")?;
-                if buf.len() >= FLUSH_AT {
-                    w.write_all(&buf)?;
-                    buf.clear();
-                }
+                flush_full(&mut w, &mut buf)?;
             }
         }
     }
     w.write_all(&buf)
+}
+
+/// Writes, atomically, one binary PLY holding the meshes `parts` yields,
+/// joined in order (vertex indices shifted), without holding them all in
+/// memory: `parts` is run twice — once for the vertices, once for the faces
+/// — and hands each mesh to the callback it is given. `layout` gives the
+/// totals and attributes every non-empty part must have.
+pub fn write_ply_joined(
+    path: &Path,
+    layout: PlyLayout,
+    mut parts: impl FnMut(&mut dyn FnMut(&Mesh) -> std::io::Result<()>) -> std::io::Result<()>,
+) -> Result<()> {
+    write_atomic(path, |w| {
+        layout.write_header(w, PlyFormat::BinaryLittleEndian)?;
+        let mut buf = Vec::with_capacity(FLUSH_AT + 256);
+        let (mut vertices, mut offset, mut triangles) = (0usize, 0usize, 0usize);
+        parts(&mut |mesh| {
+            layout.check_part(mesh)?;
+            layout.write_vertices(w, &mut buf, mesh)?;
+            vertices += mesh.vertex_count();
+            Ok(())
+        })?;
+        parts(&mut |mesh| {
+            write_faces(w, &mut buf, mesh, offset as u32)?;
+            offset += mesh.vertex_count();
+            triangles += mesh.triangle_count();
+            Ok(())
+        })?;
+        w.write_all(&buf)?;
+        if (vertices, offset, triangles) != (layout.vertices, layout.vertices, layout.triangles) {
+            return Err(std::io::Error::new(
+                std::io::ErrorKind::InvalidData,
+                format!(
+                    "the parts hold {vertices} vertices and {triangles} triangles, the header says {} and {}",
+                    layout.vertices, layout.triangles
+                ),
+            ));
+        }
+        Ok(())
+    })
+}
+
+/// What a PLY header declares: element counts and vertex attributes.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub struct PlyLayout {
+    /// Number of vertices.
+    pub vertices: usize,
+    /// Number of triangles.
+    pub triangles: usize,
+    /// Whether vertices carry `nx ny nz`.
+    pub normals: bool,
+    /// Whether vertices carry `red green blue`.
+    pub colors: bool,
+}
+
+/// Values go into one reusable buffer handed to the writer in large blocks:
+/// a write call per value would dominate the cost.
+const FLUSH_AT: usize = 1 << 20;
+
+fn flush_full<W: Write + ?Sized>(w: &mut W, buf: &mut Vec<u8>) -> std::io::Result<()> {
+    if buf.len() >= FLUSH_AT {
+        w.write_all(buf)?;
+        buf.clear();
+    }
+    Ok(())
+}
+
+fn invalid(message: String) -> std::io::Error {
+    std::io::Error::new(std::io::ErrorKind::InvalidInput, message)
+}
+
+impl PlyLayout {
+    /// The layout of one whole mesh.
+    pub fn of(mesh: &Mesh) -> Self {
+        PlyLayout {
+            vertices: mesh.vertex_count(),
+            triangles: mesh.triangle_count(),
+            normals: !mesh.normals.is_empty(),
+            colors: !mesh.colors.is_empty(),
+        }
+    }
+
+    /// Rejects a part whose attributes differ from the header's (an empty
+    /// part has none and fits any header).
+    fn check_part(&self, mesh: &Mesh) -> std::io::Result<()> {
+        mesh.check().map_err(invalid)?;
+        let fits = mesh.positions.is_empty()
+            || (self.normals != mesh.normals.is_empty() && self.colors != mesh.colors.is_empty());
+        if fits {
+            Ok(())
+        } else {
+            Err(invalid(
+                "a part's vertex attributes differ from the others'".into(),
+            ))
+        }
+    }
+
+    fn write_header<W: Write + ?Sized>(&self, w: &mut W, format: PlyFormat) -> std::io::Result<()> {
+        if self.vertices > i32::MAX as usize {
+            return Err(invalid("too many vertices for PLY int indices".into()));
+        }
+        let mut head = String::from("ply\n");
+        head.push_str(match format {
+            PlyFormat::BinaryLittleEndian => "format binary_little_endian 1.0\n",
+            PlyFormat::Ascii => "format ascii 1.0\n",
+        });
+        head.push_str("comment written by depthmesh\n");
+        head.push_str(&format!("element vertex {}\n", self.vertices));
+        head.push_str("property float x\nproperty float y\nproperty float z\n");
+        if self.normals {
+            head.push_str("property float nx\nproperty float ny\nproperty float nz\n");
+        }
+        if self.colors {
+            head.push_str("property uchar red\nproperty uchar green\nproperty uchar blue\n");
+        }
+        head.push_str(&format!("element face {}\n", self.triangles));
+        head.push_str("property list uchar int vertex_indices\nend_header\n");
+        w.write_all(head.as_bytes())
+    }
+
+    /// The binary vertex records of `mesh`.
+    fn write_vertices<W: Write + ?Sized>(
+        &self,
+        w: &mut W,
+        buf: &mut Vec<u8>,
+        mesh: &Mesh,
+    ) -> std::io::Result<()> {
+        for (i, p) in mesh.positions.iter().enumerate() {
+            for v in p.to_array() {
+                buf.extend_from_slice(&v.to_le_bytes());
+            }
+            if self.normals {
+                for v in mesh.normals[i].to_array() {
+                    buf.extend_from_slice(&v.to_le_bytes());
+                }
+            }
+            if self.colors {
+                buf.extend_from_slice(&mesh.colors[i]);
+            }
+            flush_full(w, buf)?;
+        }
+        Ok(())
+    }
+}
+
+/// The binary face records of `mesh`, its indices shifted by `offset`.
+fn write_faces<W: Write + ?Sized>(
+    w: &mut W,
+    buf: &mut Vec<u8>,
+    mesh: &Mesh,
+    offset: u32,
+) -> std::io::Result<()> {
+    for t in &mesh.triangles {
+        buf.push(3);
+        for i in t {
+            buf.extend_from_slice(&(i + offset).to_le_bytes());
+        }
+        flush_full(w, buf)?;
+    }
+    Ok(())
 }
 
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]

@@ -1,6 +1,8 @@
 //! The TSDF back-end behind the common [`Mapper`] interface: fuse, keep the
-//! mesh of changed blocks up to date, predict depth by ray casting.
+//! mesh of changed blocks up to date, predict depth by ray casting, and with
+//! an active region hand out the mesh of blocks left behind.
 
+use super::evict::ActiveRegion;
 use super::mesh::MeshCache;
 use super::raycast::RaycastImage;
 use super::{TsdfConfig, TsdfVolume};
@@ -27,6 +29,12 @@ pub struct TsdfMapper {
     range: (f32, f32),
     /// The pose and depth of the last fused frame.
     last_view: Option<(Pose, DepthImage)>,
+    /// When set, blocks out of range are written out and freed.
+    active: Option<ActiveRegion>,
+    /// Triangles of blocks written out since the last [`TsdfMapper::take_evicted`].
+    evicted_mesh: Mesh,
+    /// Most blocks held at once.
+    peak_blocks: usize,
 }
 
 impl TsdfMapper {
@@ -43,7 +51,48 @@ impl TsdfMapper {
             assembled: true,
             range: (near, far),
             last_view: None,
+            active: None,
+            evicted_mesh: Mesh::default(),
+            peak_blocks: 0,
         })
+    }
+
+    /// Bounds memory: after each frame, blocks farther than `radius` metres
+    /// from the camera are meshed into [`TsdfMapper::take_evicted`] and freed
+    /// (see [`super::evict`]); [`Mapper::mesh`] then holds only the rest.
+    pub fn set_active_radius(&mut self, radius: f32) -> Result<()> {
+        self.active = Some(ActiveRegion::new(radius)?);
+        self.volume.set_reach(radius);
+        Ok(())
+    }
+
+    /// The farthest a fused voxel can be from the camera: the far depth along
+    /// the image's corner rays, plus the truncation. An active radius below
+    /// this drops the farthest measurements.
+    pub fn reach(&self) -> f32 {
+        let k = &self.intrinsics;
+        let (w, h) = (k.width as f32, k.height as f32);
+        let corner = [(0.0, 0.0), (w, 0.0), (0.0, h), (w, h)]
+            .map(|(u, v)| k.back_project(u, v, 1.0).length())
+            .into_iter()
+            .fold(1.0f32, f32::max);
+        self.range.1 * corner + self.volume.config().truncation
+    }
+
+    /// The triangles of the blocks written out since the last call (global
+    /// coordinates; empty without an active radius).
+    pub fn take_evicted(&mut self) -> Mesh {
+        std::mem::take(&mut self.evicted_mesh)
+    }
+
+    /// Blocks freed so far by the active region.
+    pub fn evicted_blocks(&self) -> usize {
+        self.active.as_ref().map_or(0, ActiveRegion::evicted_blocks)
+    }
+
+    /// Most blocks held in memory at once (after a frame's integration).
+    pub fn peak_blocks(&self) -> usize {
+        self.peak_blocks
     }
 
     /// The fused volume.
@@ -52,11 +101,19 @@ impl TsdfMapper {
     }
 
     /// A full marching-cubes extraction from scratch (what the kept,
-    /// incrementally updated mesh equals).
+    /// incrementally updated mesh equals); with an active radius, of the
+    /// blocks not written out yet.
     pub fn extract_mesh(&self) -> Mesh {
         let mut cache = MeshCache::new(1);
         cache.update(&self.volume);
-        cache.assemble()
+        self.assemble(&cache)
+    }
+
+    fn assemble(&self, cache: &MeshCache) -> Mesh {
+        match &self.active {
+            Some(active) => active.remainder(&self.volume, cache),
+            None => cache.assemble(),
+        }
     }
 
     /// Ray casts the volume from `pose` (depth, points, normals).
@@ -74,6 +131,7 @@ impl Mapper for TsdfMapper {
     fn integrate(&mut self, frame: &Frame, pose: &Pose) -> Result<IntegrateReport> {
         let start = Instant::now();
         let blocks_before = self.volume.blocks().len();
+        let evicted_before = self.evicted_blocks();
         self.volume
             .integrate(&frame.depth, frame.color.as_ref(), &self.intrinsics, pose)?;
         let integrated = start.elapsed();
@@ -81,24 +139,39 @@ impl Mapper for TsdfMapper {
         *at = *pose;
         depth.reset(frame.depth.width, frame.depth.height);
         depth.data.copy_from_slice(&frame.depth.data);
+        self.peak_blocks = self.peak_blocks.max(self.volume.blocks().len());
+        if let Some(active) = &mut self.active {
+            let mesh = active.update(&mut self.volume, &mut self.cache, pose.translation);
+            self.evicted_mesh.append(&mesh);
+        }
+        let evicted = start.elapsed() - integrated;
+        let evicted_now = self.evicted_blocks() - evicted_before;
         let due = self.remesh_every > 0 && self.volume.frames().is_multiple_of(self.remesh_every);
         let remeshed = if due {
             self.cache.update(&self.volume)
         } else {
             0
         };
-        let meshed = start.elapsed() - integrated;
+        let meshed = start.elapsed() - integrated - evicted;
         self.assembled = false;
+        let mut extra = vec![
+            ("blocks", self.volume.blocks().len() as f64),
+            ("remeshed_blocks", remeshed as f64),
+            ("integrate_ms", integrated.as_secs_f64() * 1e3),
+            ("remesh_ms", meshed.as_secs_f64() * 1e3),
+        ];
+        if self.active.is_some() {
+            extra.push(("evicted_blocks", self.evicted_blocks() as f64));
+            extra.push(("evict_ms", evicted.as_secs_f64() * 1e3));
+        }
+        let blocks = self.volume.blocks().len();
         Ok(IntegrateReport {
             // The map's elements are voxels, allocated a block at a time.
-            new_elements: (self.volume.blocks().len() - blocks_before) * super::BLOCK_VOXELS,
+            new_elements: (blocks + evicted_now).saturating_sub(blocks_before)
+                * super::BLOCK_VOXELS,
+            // Evicted blocks leave memory, not the map: they are written out.
             removed_elements: 0,
-            extra: vec![
-                ("blocks", self.volume.blocks().len() as f64),
-                ("remeshed_blocks", remeshed as f64),
-                ("integrate_ms", integrated.as_secs_f64() * 1e3),
-                ("remesh_ms", meshed.as_secs_f64() * 1e3),
-            ],
+            extra,
         })
     }
 
@@ -119,7 +192,7 @@ impl Mapper for TsdfMapper {
     fn mesh(&mut self) -> &Mesh {
         if !self.assembled {
             self.cache.update(&self.volume);
-            self.mesh = self.cache.assemble();
+            self.mesh = self.assemble(&self.cache);
             self.assembled = true;
         }
         &self.mesh

@@ -8,19 +8,16 @@
 //! no cracks and no duplicates. A block's piece depends only on the voxels of
 //! the block and its seven neighbours above (cubes and edges reach one voxel
 //! up, normals two; at a block's lower faces normals use one-sided
-//! differences rather than reach down), so when a block changes, it and the
-//! seven blocks below it are re-meshed and the assembled mesh equals a full
-//! extraction.
+//! differences rather than reach down), so a block is re-meshed when its own
+//! voxels or the lowest two layers of a neighbour above changed as the mesh
+//! sees them (see [`super::changes`]), and the assembled mesh equals a full
+//! extraction. Blocks without a sign change are skipped before gathering,
+//! and sign changes are found a bit row at a time.
 
-use super::{cases, voxel_index, TsdfVolume, BLOCK};
+use super::{cases, voxel_index, KeyMap, TsdfVolume, BLOCK};
 use crate::mesh::Mesh;
 use glam::{IVec3, Vec3};
 use rayon::prelude::*;
-use std::collections::HashMap;
-use std::hash::BuildHasherDefault;
-
-/// A map keyed by block coordinates with the volume's fast hash.
-type KeyMap<V> = HashMap<IVec3, V, BuildHasherDefault<super::KeyHasher>>;
 
 /// A reference to a vertex: the owning block as an offset (bit 0: +x, bit 1:
 /// +y, bit 2: +z from the referring block) and the edge within it.
@@ -55,22 +52,25 @@ pub struct MeshCache {
 /// Side of the gathered neighbourhood: voxels 0..=9 of a block.
 const G: usize = BLOCK + 2;
 
-/// The distances and weights of a block and the first two voxel layers of
-/// its neighbours above, so the block can be meshed without further lookups.
+/// The distances (stored units) and observed/inside states of a block and
+/// the first two voxel layers of its neighbours above, so the block can be
+/// meshed without further lookups. Unscaled distances are fine: vertices
+/// interpolate ratios of them and normals are normalised.
 struct Neighbourhood {
-    tsdf: [f32; G * G * G],
-    weight: [u16; G * G * G],
-    color: [[u8; 3]; G * G * G],
+    tsdf: [i16; G * G * G],
+    /// Bit 0: observed (weight ≥ the minimum); bit 1: inside (negative).
+    state: [u8; G * G * G],
+    /// Colours, when the volume keeps them.
+    color: Option<Box<[[u8; 3]; G * G * G]>>,
 }
 
 impl Neighbourhood {
-    fn gather(volume: &TsdfVolume, key: IVec3) -> Self {
+    fn gather(volume: &TsdfVolume, key: IVec3, min_weight: u16) -> Self {
         let mut n = Neighbourhood {
-            tsdf: [0.0; G * G * G],
-            weight: [0; G * G * G],
-            color: [[0; 3]; G * G * G],
+            tsdf: [0; G * G * G],
+            state: [0; G * G * G],
+            color: volume.config().color.then(|| Box::new([[0; 3]; G * G * G])),
         };
-        let b = BLOCK as i32;
         for d in 0..8 {
             let offset = IVec3::new(d & 1, (d >> 1) & 1, (d >> 2) & 1);
             let Some(&i) = volume.index().get(&(key + offset)) else {
@@ -78,22 +78,41 @@ impl Neighbourhood {
             };
             let block = &volume.blocks()[i as usize];
             // Our own block whole; of a neighbour above, its first two layers.
-            let end = |o: i32| if o == 0 { b } else { 2 };
-            for z in 0..end(offset.z) {
-                for y in 0..end(offset.y) {
-                    for x in 0..end(offset.x) {
-                        let src = voxel_index(x as usize, y as usize, z as usize);
-                        let dst = Self::at(IVec3::new(x, y, z) + offset * b);
-                        n.tsdf[dst] = f32::from(block.tsdf[src]) / super::TSDF_SCALE;
-                        n.weight[dst] = block.weight[src];
-                        if let Some(c) = &block.color {
-                            n.color[dst] = c[src];
-                        }
+            let end = offset.to_array().map(|o| if o == 0 { BLOCK } else { 2 });
+            let start = Self::at(offset * BLOCK as i32);
+            for z in 0..end[2] {
+                for y in 0..end[1] {
+                    let (src, dst) = (voxel_index(0, y, z), start + y * G + z * G * G);
+                    // Rows of a length known when compiling copy without a call.
+                    if end[0] == BLOCK {
+                        n.copy_row::<BLOCK>(block, src, dst, min_weight);
+                    } else {
+                        n.copy_row::<2>(block, src, dst, min_weight);
                     }
                 }
             }
         }
         n
+    }
+
+    /// Copies `LEN` voxels from `block` (from voxel `src`) to gathered voxel `dst` on.
+    #[inline(always)]
+    fn copy_row<const LEN: usize>(
+        &mut self,
+        block: &super::Block,
+        src: usize,
+        dst: usize,
+        min_weight: u16,
+    ) {
+        let tsdf: &[i16; LEN] = block.tsdf[src..src + LEN].try_into().expect("LEN voxels");
+        let weight: &[u16; LEN] = block.weight[src..src + LEN].try_into().expect("LEN voxels");
+        self.tsdf[dst..dst + LEN].copy_from_slice(tsdf);
+        for ((s, &w), &t) in self.state[dst..dst + LEN].iter_mut().zip(weight).zip(tsdf) {
+            *s = u8::from(w >= min_weight) | u8::from(t < 0) << 1;
+        }
+        if let (Some(to), Some(from)) = (self.color.as_deref_mut(), &block.color) {
+            to[dst..dst + LEN].copy_from_slice(&from[src..src + LEN]);
+        }
     }
 
     /// Index of block-local voxel `v` (each coordinate 0..=9).
@@ -104,19 +123,16 @@ impl Neighbourhood {
 
     /// Distance gradient at block-local voxel `v` by central differences,
     /// one-sided where a neighbour was never observed.
-    fn gradient(&self, v: IVec3, min_weight: u16) -> Vec3 {
+    fn gradient(&self, v: IVec3) -> Vec3 {
+        let i = Self::at(v);
+        let sample = |j: usize| (self.state[j] & 1 != 0).then(|| f32::from(self.tsdf[j]));
+        let c = f32::from(self.tsdf[i]);
         let mut g = Vec3::ZERO;
-        for axis in 0..3 {
-            let e = IVec3::AXES[axis];
-            let sample = |p: IVec3| {
-                if !(p.cmpge(IVec3::ZERO).all() && p.cmplt(IVec3::splat(G as i32)).all()) {
-                    return None;
-                }
-                let i = Self::at(p);
-                (self.weight[i] >= min_weight).then(|| self.tsdf[i])
-            };
-            let c = self.tsdf[Self::at(v)];
-            let (lo, hi) = (sample(v - e), sample(v + e));
+        for (axis, step) in STEP.iter().enumerate() {
+            let lo = (v[axis] > 0).then(|| sample(i - step)).flatten();
+            let hi = ((v[axis] as usize) < G - 1)
+                .then(|| sample(i + step))
+                .flatten();
             g[axis] = match (lo, hi) {
                 (Some(l), Some(h)) => 0.5 * (h - l),
                 (None, Some(h)) => h - c,
@@ -139,14 +155,16 @@ impl MeshCache {
         }
     }
 
-    /// Re-meshes the blocks changed since the last update and the seven
-    /// blocks below each; returns how many blocks were meshed.
+    /// Re-meshes the blocks whose input changed since the last update: a
+    /// changed block, and those of the seven blocks below it whose border
+    /// with it changed; returns how many blocks were meshed.
     pub fn update(&mut self, volume: &TsdfVolume) -> usize {
         let mut dirty: Vec<IVec3> = Vec::new();
-        for (block, &changed) in volume.blocks().iter().zip(volume.changed_at()) {
-            if changed > self.frame {
-                for d in 0..8 {
-                    let below = block.key - IVec3::new(d & 1, (d >> 1) & 1, (d >> 2) & 1);
+        for (block, changes) in volume.blocks().iter().zip(volume.changes()) {
+            for d in 0..8 {
+                if changes.affecting(d, self.min_weight) > self.frame {
+                    let below = block.key
+                        - IVec3::new(d as i32 & 1, (d as i32 >> 1) & 1, (d as i32 >> 2) & 1);
                     if volume.index().contains_key(&below) {
                         dirty.push(below);
                     }
@@ -169,94 +187,240 @@ impl MeshCache {
 
     /// The whole mesh: the blocks' pieces joined, in block-key order.
     pub fn assemble(&self) -> Mesh {
-        let mut keys: Vec<IVec3> = self.pieces.keys().copied().collect();
-        keys.sort_unstable_by_key(|k| (k.x, k.y, k.z));
-        let mut offsets: KeyMap<u32> = KeyMap::default();
-        offsets.reserve(keys.len());
-        let mut mesh = Mesh::default();
-        for k in &keys {
-            let p = &self.pieces[k];
-            offsets.insert(*k, mesh.positions.len() as u32);
-            mesh.positions.extend_from_slice(&p.positions);
-            mesh.normals.extend_from_slice(&p.normals);
-            mesh.colors.extend_from_slice(&p.colors);
-        }
-        for k in &keys {
-            let p = &self.pieces[k];
-            'triangles: for t in &p.triangles {
-                let mut tri = [0u32; 3];
-                for (slot, r) in tri.iter_mut().zip(t) {
-                    let owner = *k
-                        + IVec3::new(
-                            (r.owner & 1) as i32,
-                            ((r.owner >> 1) & 1) as i32,
-                            ((r.owner >> 2) & 1) as i32,
-                        );
-                    let (Some(piece), Some(&base)) = (self.pieces.get(&owner), offsets.get(&owner))
-                    else {
-                        continue 'triangles;
-                    };
-                    let Ok(local) = piece.edges.binary_search(&r.edge) else {
-                        continue 'triangles;
-                    };
-                    *slot = base + local as u32;
-                }
-                mesh.triangles.push(tri);
-            }
-        }
+        let keys = sorted_keys(&self.pieces);
+        join(&self.pieces, &keys, &keys)
+    }
+
+    /// The triangles of the cubes the blocks `keys` own, with only the
+    /// vertices they use (some belong to the blocks above).
+    pub fn assemble_blocks(&self, keys: &[IVec3]) -> Mesh {
+        let mut mesh = join(&self.pieces, &sorted_keys(&self.pieces), keys);
+        mesh.remove_unreferenced_vertices();
         mesh
+    }
+
+    /// Drops the pieces of blocks that left the volume.
+    pub fn forget(&mut self, keys: &[IVec3]) {
+        for key in keys {
+            self.pieces.remove(key);
+        }
+    }
+
+    /// Voxels with a smaller weight count as unobserved.
+    pub fn min_weight(&self) -> u16 {
+        self.min_weight
     }
 }
 
+/// The triangles of the cubes the blocks `keys` own, meshed afresh from the
+/// volume (with the blocks above them, which own some of their vertices),
+/// with only the vertices they use: exactly what a full extraction holds
+/// for these blocks.
+pub fn extract_blocks(volume: &TsdfVolume, keys: &[IVec3], min_weight: u16) -> Mesh {
+    let mut owners: Vec<IVec3> = keys
+        .iter()
+        .flat_map(|&k| (0..8).map(move |d| k + IVec3::new(d & 1, (d >> 1) & 1, (d >> 2) & 1)))
+        .filter(|k| volume.index().contains_key(k))
+        .collect();
+    owners.sort_unstable_by_key(|k| (k.x, k.y, k.z));
+    owners.dedup();
+    let pieces: KeyMap<BlockMesh> = owners
+        .par_iter()
+        .map(|&key| (key, mesh_block(volume, key, min_weight.max(1))))
+        .collect();
+    let mut mesh = join(&pieces, &owners, keys);
+    mesh.remove_unreferenced_vertices();
+    mesh
+}
+
+fn sorted_keys<V>(map: &KeyMap<V>) -> Vec<IVec3> {
+    let mut keys: Vec<IVec3> = map.keys().copied().collect();
+    keys.sort_unstable_by_key(|k| (k.x, k.y, k.z));
+    keys
+}
+
+/// Joins pieces: the vertices of the pieces `vertex_keys` (in that order),
+/// and the triangles of the pieces `triangle_keys` whose vertices are among them.
+fn join(pieces: &KeyMap<BlockMesh>, vertex_keys: &[IVec3], triangle_keys: &[IVec3]) -> Mesh {
+    let mut offsets: KeyMap<(u32, &BlockMesh)> = KeyMap::default();
+    offsets.reserve(vertex_keys.len());
+    let mut mesh = Mesh::default();
+    for k in vertex_keys {
+        let p = &pieces[k];
+        offsets.insert(*k, (mesh.positions.len() as u32, p));
+        mesh.positions.extend_from_slice(&p.positions);
+        mesh.normals.extend_from_slice(&p.normals);
+        mesh.colors.extend_from_slice(&p.colors);
+    }
+    // Block by block in parallel: the eight possible owners are looked up
+    // once per block, not once per corner.
+    let triangles: Vec<Vec<[u32; 3]>> = triangle_keys
+        .par_iter()
+        .map(|k| {
+            let Some(p) = pieces.get(k) else {
+                return Vec::new();
+            };
+            let owners: [Option<&(u32, &BlockMesh)>; 8] = std::array::from_fn(|d| {
+                let d = d as i32;
+                offsets.get(&(*k + IVec3::new(d & 1, (d >> 1) & 1, (d >> 2) & 1)))
+            });
+            let resolve = |r: &EdgeRef| {
+                let (base, piece) = owners[r.owner as usize]?;
+                let local = piece.edges.binary_search(&r.edge).ok()?;
+                Some(base + local as u32)
+            };
+            p.triangles
+                .iter()
+                .filter_map(|t| Some([resolve(&t[0])?, resolve(&t[1])?, resolve(&t[2])?]))
+                .collect()
+        })
+        .collect();
+    mesh.triangles = triangles.concat();
+    mesh
+}
+
+/// Whether block `key` may own a vertex or a triangle: an observed voxel of
+/// it differs in sign from another observed voxel of it or of the lowest
+/// layer of a neighbour above (all that its edges and cubes reach). Most
+/// blocks of the truncation band lie wholly in front of or behind the
+/// surface; this spares them the gathering.
+fn has_surface(volume: &TsdfVolume, key: IVec3, min_weight: u16) -> bool {
+    // Whether observed voxels among these lie inside, and outside.
+    let scan = |tsdf: &[i16], weight: &[u16]| {
+        tsdf.iter()
+            .zip(weight)
+            .fold((false, false), |(inside, outside), (&t, &w)| {
+                let observed = w >= min_weight;
+                (
+                    inside | (observed & (t < 0)),
+                    outside | (observed & (t >= 0)),
+                )
+            })
+    };
+    let signs = |block: &super::Block, range: [usize; 3]| {
+        let (mut inside, mut outside) = (false, false);
+        for z in 0..range[2] {
+            for y in 0..range[1] {
+                let row = voxel_index(0, y, z)..voxel_index(range[0], y, z);
+                let (i, o) = scan(&block.tsdf[row.clone()], &block.weight[row]);
+                (inside, outside) = (inside | i, outside | o);
+            }
+        }
+        (inside, outside)
+    };
+    let Some(&own) = volume.index().get(&key) else {
+        return false;
+    };
+    // The whole block at once: one long loop the compiler vectorises.
+    let block = &volume.blocks()[own as usize];
+    let (inside, outside) = scan(&block.tsdf[..], &block.weight[..]);
+    if inside && outside {
+        return true;
+    }
+    if !(inside || outside) {
+        // Every edge and cube starts at an observed voxel of the block.
+        return false;
+    }
+    (1..8).any(|d| {
+        let offset = IVec3::new(d & 1, (d >> 1) & 1, (d >> 2) & 1);
+        volume.index().get(&(key + offset)).is_some_and(|&i| {
+            let range = offset.to_array().map(|o| if o == 0 { BLOCK } else { 1 });
+            let (i_in, i_out) = signs(&volume.blocks()[i as usize], range);
+            (inside && i_out) || (outside && i_in)
+        })
+    })
+}
+
+/// Steps between neighbouring voxels of a gathered neighbourhood, per axis.
+const STEP: [usize; 3] = [1, G, G * G];
+
 /// Meshes the edges and cubes block `key` owns.
 fn mesh_block(volume: &TsdfVolume, key: IVec3, min_weight: u16) -> BlockMesh {
-    let n = Neighbourhood::gather(volume, key);
     let mut out = BlockMesh::default();
-    // Most blocks of the truncation band lie wholly in front of (or behind)
-    // the surface: with no sign change among their observed voxels (and the
-    // layer above them) there is nothing to mesh.
-    let (mut any_inside, mut any_outside) = (false, false);
-    for (&t, &w) in n.tsdf.iter().zip(&n.weight) {
-        if w >= min_weight {
-            any_inside |= t < 0.0;
-            any_outside |= t >= 0.0;
-        }
-    }
-    if !(any_inside && any_outside) {
+    if !has_surface(volume, key, min_weight) {
         return out;
     }
-    let observed = |v: IVec3| n.weight[Neighbourhood::at(v)] >= min_weight;
-    let value = |v: IVec3| n.tsdf[Neighbourhood::at(v)];
+    let n = Neighbourhood::gather(volume, key, min_weight);
+    let state = &n.state;
+    // Bit rows along x (bit x = voxel x) of the observed and the inside
+    // voxels, per (y, z): sign changes are found a row at a time, and only
+    // the few edges and cubes the surface crosses are visited.
+    let mut observed = [[0u16; G]; G];
+    let mut inside = [[0u16; G]; G];
+    for z in 0..G {
+        for y in 0..G {
+            let row = &state[Neighbourhood::at(IVec3::new(0, y as i32, z as i32))..][..G];
+            for (x, &s) in row.iter().enumerate() {
+                observed[z][y] |= u16::from(s & 1) << x;
+                inside[z][y] |= u16::from(s >> 1) << x;
+            }
+        }
+    }
     let b = BLOCK as i32;
     let voxel = volume.config().voxel;
-    // Vertices on the owned edges, in edge-id order.
-    for z in 0..b {
-        for y in 0..b {
-            for x in 0..b {
-                let v = IVec3::new(x, y, z);
-                if !observed(v) {
-                    continue;
-                }
-                for axis in 0..3 {
-                    let w = v + IVec3::AXES[axis];
-                    if !observed(w) {
+    let origin = volume.voxel_position(key, 0, 0, 0);
+    let own = (1u16 << BLOCK) - 1;
+    // Per row of voxels, the edges the surface crosses (per axis) and the
+    // cubes it passes through — all corners observed, not all on one side —
+    // counted first so the piece's arrays are allocated once.
+    let mut crossings = [[[0u16; 3]; BLOCK]; BLOCK];
+    let mut cube_rows = [[0u16; BLOCK]; BLOCK];
+    let (mut vertices, mut cubes) = (0, 0);
+    for z in 0..BLOCK {
+        for y in 0..BLOCK {
+            let (o, i) = (observed[z][y], inside[z][y]);
+            crossings[z][y] = [
+                o & (o >> 1) & (i ^ (i >> 1)),
+                o & observed[z][y + 1] & (i ^ inside[z][y + 1]),
+                o & observed[z + 1][y] & (i ^ inside[z + 1][y]),
+            ]
+            .map(|m| m & own);
+            let rows = [(z, y), (z, y + 1), (z + 1, y), (z + 1, y + 1)];
+            let (mut all_observed, mut any_inside, mut all_inside) = (own, 0u16, own);
+            for (rz, ry) in rows {
+                let (o, i) = (observed[rz][ry], inside[rz][ry]);
+                all_observed &= o & (o >> 1);
+                any_inside |= i | (i >> 1);
+                all_inside &= i & (i >> 1);
+            }
+            cube_rows[z][y] = all_observed & any_inside & !all_inside;
+            vertices += crossings[z][y].map(u16::count_ones).iter().sum::<u32>() as usize;
+            cubes += cube_rows[z][y].count_ones() as usize;
+        }
+    }
+    out.edges.reserve_exact(vertices);
+    out.positions.reserve_exact(vertices);
+    out.normals.reserve_exact(vertices);
+    if n.color.is_some() {
+        out.colors.reserve_exact(vertices);
+    }
+    // Most crossed cubes hold one or two triangles.
+    out.triangles.reserve(2 * cubes);
+    // Vertices on the owned edges, in edge-id order (voxel, then axis).
+    for (z, plane) in crossings.iter().enumerate() {
+        for (y, &crossing) in plane.iter().enumerate() {
+            let mut any = crossing[0] | crossing[1] | crossing[2];
+            while any != 0 {
+                let x = any.trailing_zeros() as usize;
+                any &= any - 1;
+                let v = IVec3::new(x as i32, y as i32, z as i32);
+                let i = Neighbourhood::at(v);
+                for (axis, step) in STEP.iter().enumerate() {
+                    if crossing[axis] & (1 << x) == 0 {
                         continue;
                     }
-                    let (f0, f1) = (value(v), value(w));
-                    if (f0 < 0.0) == (f1 < 0.0) {
-                        continue;
-                    }
+                    let j = i + step;
+                    let (f0, f1) = (f32::from(n.tsdf[i]), f32::from(n.tsdf[j]));
                     let t = f0 / (f0 - f1);
-                    let p0 = volume.voxel_position(key, 0, 0, 0) + v.as_vec3() * voxel;
-                    out.edges
-                        .push((voxel_index(x as usize, y as usize, z as usize) * 3 + axis) as u16);
-                    out.positions
-                        .push(p0 + IVec3::AXES[axis].as_vec3() * (t * voxel));
-                    let g = n.gradient(v, min_weight).lerp(n.gradient(w, min_weight), t);
+                    let w = v + IVec3::AXES[axis];
+                    out.edges.push((voxel_index(x, y, z) * 3 + axis) as u16);
+                    out.positions.push(
+                        origin + v.as_vec3() * voxel + IVec3::AXES[axis].as_vec3() * (t * voxel),
+                    );
+                    let g = n.gradient(v).lerp(n.gradient(w), t);
                     out.normals.push(g.normalize_or_zero());
-                    if volume.config().color {
-                        let (c0, c1) =
-                            (n.color[Neighbourhood::at(v)], n.color[Neighbourhood::at(w)]);
+                    if let Some(color) = n.color.as_deref() {
+                        let (c0, c1) = (color[i], color[j]);
                         out.colors.push(std::array::from_fn(|ch| {
                             (f32::from(c0[ch]) + (f32::from(c1[ch]) - f32::from(c0[ch])) * t + 0.5)
                                 as u8
@@ -266,49 +430,46 @@ fn mesh_block(volume: &TsdfVolume, key: IVec3, min_weight: u16) -> BlockMesh {
             }
         }
     }
-    // Triangles of the owned cubes.
+    // Triangles of the owned cubes; per cube edge, its start corner and axis.
     let table = cases::table();
-    for z in 0..b {
-        for y in 0..b {
-            for x in 0..b {
-                let base = IVec3::new(x, y, z);
+    let edge_start = cases::EDGES.map(|(a, bb)| {
+        let (c, d) = (cases::CORNERS[a as usize], cases::CORNERS[bb as usize]);
+        let axis = (0..3)
+            .find(|&k| d[k] != c[k])
+            .expect("an edge runs along one axis");
+        (IVec3::new(c[0] as i32, c[1] as i32, c[2] as i32), axis)
+    });
+    let corner_step =
+        cases::CORNERS.map(|c| c[0] as usize + G * (c[1] as usize + G * c[2] as usize));
+    let edge_ref = |base: IVec3, e: u8| {
+        let (corner, axis) = edge_start[e as usize];
+        let start = base + corner;
+        let owner = start.cmpge(IVec3::splat(b));
+        let local = start - IVec3::select(owner, IVec3::splat(b), IVec3::ZERO);
+        EdgeRef {
+            owner: owner.bitmask() as u8,
+            edge: (voxel_index(local.x as usize, local.y as usize, local.z as usize) * 3 + axis)
+                as u16,
+        }
+    };
+    for (z, plane) in cube_rows.iter().enumerate() {
+        for (y, &row) in plane.iter().enumerate() {
+            let mut cubes = row;
+            while cubes != 0 {
+                let x = cubes.trailing_zeros() as usize;
+                cubes &= cubes - 1;
+                let base = IVec3::new(x as i32, y as i32, z as i32);
+                let i = Neighbourhood::at(base);
                 let mut case = 0usize;
-                let mut all_observed = true;
-                for (i, c) in cases::CORNERS.iter().enumerate() {
-                    let v = base + IVec3::new(c[0] as i32, c[1] as i32, c[2] as i32);
-                    all_observed &= observed(v);
-                    if value(v) < 0.0 {
-                        case |= 1 << i;
-                    }
-                }
-                if !all_observed {
-                    continue;
+                for (c, step) in corner_step.iter().enumerate() {
+                    case |= usize::from(state[i + step] >> 1) << c;
                 }
                 for tri in &table[case] {
-                    out.triangles.push(tri.map(|e| {
-                        let (a, bb) = cases::EDGES[e as usize];
-                        let c = cases::CORNERS[a as usize];
-                        let start = base + IVec3::new(c[0] as i32, c[1] as i32, c[2] as i32);
-                        let d = cases::CORNERS[bb as usize];
-                        let axis = (0..3)
-                            .find(|&k| d[k] != c[k])
-                            .expect("an edge runs along one axis");
-                        let owner = IVec3::new(
-                            (start.x >= b) as i32,
-                            (start.y >= b) as i32,
-                            (start.z >= b) as i32,
-                        );
-                        let local = start - owner * b;
-                        EdgeRef {
-                            owner: (owner.x | owner.y << 1 | owner.z << 2) as u8,
-                            edge: (voxel_index(
-                                local.x as usize,
-                                local.y as usize,
-                                local.z as usize,
-                            ) * 3
-                                + axis) as u16,
-                        }
-                    }));
+                    out.triangles.push([
+                        edge_ref(base, tri[0]),
+                        edge_ref(base, tri[1]),
+                        edge_ref(base, tri[2]),
+                    ]);
                 }
             }
         }

@@ -4,10 +4,12 @@
 //! Each voxel keeps its truncated distance as an `i16` (−1..1 scaled) and its
 //! weight as a `u16`: 4 bytes. Blocks are allocated along each pixel's
 //! truncation band and integrated in parallel, block by block; a block's
-//! mesh is rebuilt only when it (or a neighbour it shares cubes with) changed,
-//! see [`mesh`].
+//! mesh is rebuilt only when what it is meshed from changed (see [`changes`]
+//! and [`mesh`]).
 
 pub mod cases;
+pub mod changes;
+pub mod evict;
 pub mod mapper;
 pub mod mesh;
 pub mod raycast;
@@ -15,6 +17,7 @@ pub mod raycast;
 use crate::camera::{Intrinsics, Pose};
 use crate::error::{Error, Result};
 use crate::image::{ColorImage, DepthImage};
+use changes::Changes;
 use glam::{IVec3, Vec3};
 use rayon::prelude::*;
 use std::collections::HashMap;
@@ -118,8 +121,11 @@ impl Hasher for KeyHasher {
     }
 }
 
+/// A map keyed by block coordinates with the fast key hash.
+pub type KeyMap<V> = HashMap<IVec3, V, BuildHasherDefault<KeyHasher>>;
+
 /// Block key → index into the block list.
-pub type BlockIndex = HashMap<IVec3, u32, BuildHasherDefault<KeyHasher>>;
+pub type BlockIndex = KeyMap<u32>;
 
 /// The sparse TSDF volume.
 #[derive(Debug)]
@@ -127,9 +133,11 @@ pub struct TsdfVolume {
     config: TsdfConfig,
     blocks: Vec<Block>,
     index: BlockIndex,
-    /// Per block: the frame that last changed it.
-    changed_at: Vec<u32>,
+    /// Per block: the frames that last changed it, by who reads the change.
+    changes: Vec<Changes>,
     frames: u32,
+    /// Only blocks wholly within this distance of the camera are fused.
+    reach: Option<f32>,
     /// Scratch: block keys touched by the current frame.
     keys: Vec<IVec3>,
 }
@@ -142,8 +150,9 @@ impl TsdfVolume {
             config,
             blocks: Vec::new(),
             index: BlockIndex::default(),
-            changed_at: Vec::new(),
+            changes: Vec::new(),
             frames: 0,
+            reach: None,
             keys: Vec::new(),
         })
     }
@@ -168,9 +177,24 @@ impl TsdfVolume {
         self.frames
     }
 
-    /// Per block, the frame number that last changed it (1-based; 0 = never).
-    pub fn changed_at(&self) -> &[u32] {
-        &self.changed_at
+    /// Per block, the frames that last changed it (1-based; 0 = never).
+    pub fn changes(&self) -> &[Changes] {
+        &self.changes
+    }
+
+    /// Fuse only into blocks that reach within `radius` metres of the
+    /// camera (KinfuLS's volume around the camera; see [`evict`]). Not
+    /// validated here: [`evict::ActiveRegion::new`] checks the radius.
+    pub fn set_reach(&mut self, radius: f32) {
+        self.reach = Some(radius);
+    }
+
+    /// Distance from `point` to the nearest point of block `key`.
+    #[inline]
+    pub fn block_distance(&self, key: IVec3, point: Vec3) -> f32 {
+        let side = self.config.voxel * BLOCK as f32;
+        let lo = key.as_vec3() * side;
+        point.clamp(lo, lo + side).distance(point)
     }
 
     /// Bytes held by the voxels (4 per voxel, 7 with colour).
@@ -235,11 +259,11 @@ impl TsdfVolume {
         let k = *intrinsics;
         self.blocks
             .par_iter_mut()
-            .zip(self.changed_at.par_iter_mut())
+            .zip(self.changes.par_iter_mut())
             .zip(touched.par_iter())
             .filter(|(_, t)| **t)
-            .for_each(|((block, changed), _)| {
-                if integrate_block(
+            .for_each(|((block, changes), _)| {
+                let (readers, weights) = integrate_block(
                     block,
                     &config,
                     &k,
@@ -247,9 +271,8 @@ impl TsdfVolume {
                     depth,
                     color,
                     &reciprocal,
-                ) {
-                    *changed = frame;
-                }
+                );
+                changes.record(frame, readers, weights);
             });
         Ok(())
     }
@@ -284,9 +307,12 @@ impl TsdfVolume {
                     for s in 0..=samples {
                         let z = near + (far - near) * s as f32 / samples as f32;
                         let p = pose.translation + ray * z;
-                        keys.push((p / block_size).floor().as_ivec3());
+                        let key = (p / block_size).floor().as_ivec3();
+                        // Samples along a ray mostly stay in one block.
+                        if keys.last() != Some(&key) {
+                            keys.push(key);
+                        }
                     }
-                    keys.dedup();
                 }
                 // Neighbouring rays hit the same blocks: thin the row out
                 // here, in parallel, so the merge below sorts far fewer keys.
@@ -301,6 +327,14 @@ impl TsdfVolume {
         }
         self.keys.par_sort_unstable_by_key(|k| (k.x, k.y, k.z));
         self.keys.dedup();
+        if let Some(radius) = self.reach {
+            let camera = pose.translation;
+            let keys = std::mem::take(&mut self.keys);
+            self.keys = keys
+                .into_iter()
+                .filter(|&k| self.block_distance(k, camera) <= radius)
+                .collect();
+        }
         for &key in &self.keys {
             if !self.index.contains_key(&key) {
                 self.index.insert(key, self.blocks.len() as u32);
@@ -310,7 +344,23 @@ impl TsdfVolume {
                     weight: Box::new([0; BLOCK_VOXELS]),
                     color: c.color.then(|| Box::new([[0; 3]; BLOCK_VOXELS])),
                 });
-                self.changed_at.push(0);
+                self.changes.push(Changes::default());
+            }
+        }
+    }
+
+    /// Frees the blocks with the given keys (keys not in the map are ignored).
+    /// Block indices change: the last block moves into each freed slot.
+    pub fn remove_blocks(&mut self, keys: &[IVec3]) {
+        for key in keys {
+            let Some(i) = self.index.remove(key) else {
+                continue;
+            };
+            let i = i as usize;
+            self.blocks.swap_remove(i);
+            self.changes.swap_remove(i);
+            if let Some(moved) = self.blocks.get(i) {
+                self.index.insert(moved.key, i as u32);
             }
         }
     }
@@ -327,7 +377,9 @@ impl TsdfVolume {
     }
 }
 
-/// Fuses a depth image into one block; returns whether any voxel changed.
+/// Fuses a depth image into one block. Returns the readers (see
+/// [`changes::readers`]) of the voxels whose distance, colour or observed
+/// state changed, and whether any weight changed.
 fn integrate_block(
     block: &mut Block,
     c: &TsdfConfig,
@@ -336,7 +388,7 @@ fn integrate_block(
     depth: &DepthImage,
     color: Option<&ColorImage>,
     reciprocal: &[f32],
-) -> bool {
+) -> (u8, bool) {
     let v = c.voxel;
     let origin = (block.key * BLOCK as i32).as_vec3() * v;
     let base = world_to_camera.transform_point(origin);
@@ -344,10 +396,12 @@ fn integrate_block(
     let (dx, dy, dz) = (r.x_axis * v, r.y_axis * v, r.z_axis * v);
     let (w, h) = (depth.width as i32, depth.height as i32);
     let inv_trunc = 1.0 / c.truncation;
-    let mut changed = false;
+    let readers_of = changes::readers();
+    let (mut readers, mut weights) = (0u8, false);
     // A row of voxels at a time: first project all eight (branch-free, so it
     // vectorises), then update those that land on a measurement.
-    let mut pixel = [0i32; BLOCK];
+    let mut pixel = [0usize; BLOCK];
+    let mut inside = [false; BLOCK];
     let mut depth_z = [0.0f32; BLOCK];
     for z in 0..BLOCK {
         for y in 0..BLOCK {
@@ -359,23 +413,19 @@ fn integrate_block(
                 let inv = 1.0 / p.z;
                 let fu = k.fx * p.x * inv + k.cx + 0.5;
                 let fv = k.fy * p.y * inv + k.cy + 0.5;
-                let inside = p.z > 0.0 && fu >= 0.0 && fv >= 0.0 && fu < w as f32 && fv < h as f32;
-                // -1 marks a voxel that projects outside the image.
-                let index = (fv as i32) * w + fu as i32;
-                pixel[x] = if inside { index } else { -1 };
+                inside[x] = p.z > 0.0 && fu >= 0.0 && fv >= 0.0 && fu < w as f32 && fv < h as f32;
+                // Pixel 0 stands in outside the image; `inside` rules it out.
+                let index = ((fv as i32) * w + fu as i32) as usize;
+                pixel[x] = if inside[x] { index } else { 0 };
                 depth_z[x] = p.z;
             }
             for x in 0..BLOCK {
-                if pixel[x] < 0 {
-                    continue;
-                }
-                let px = pixel[x] as usize;
+                let px = pixel[x];
                 let d = depth.data[px];
-                if d <= 0.0 {
-                    continue;
-                }
                 let sdf = d - depth_z[x];
-                if sdf < -c.truncation {
+                // One branch for the three reasons to leave a voxel alone:
+                // which of them applies is hard to predict.
+                if !(inside[x] & (d > 0.0) & (sdf >= -c.truncation)) {
                     continue;
                 }
                 let t = (sdf * inv_trunc).min(1.0);
@@ -383,9 +433,13 @@ fn integrate_block(
                 let wt = block.weight[i];
                 // Running average in stored units: old + (new − old) / (w + 1),
                 // rounded half away from zero without a libm call.
-                let old = f32::from(block.tsdf[i]);
-                let fused = old + (t * TSDF_SCALE - old) * reciprocal[usize::from(wt)];
-                block.tsdf[i] = (fused + 0.5f32.copysign(fused)) as i16;
+                let old = block.tsdf[i];
+                let o = f32::from(old);
+                let fused = o + (t * TSDF_SCALE - o) * reciprocal[usize::from(wt)];
+                let new = (fused + 0.5f32.copysign(fused)) as i16;
+                block.tsdf[i] = new;
+                block.weight[i] = (wt + 1).min(c.max_weight);
+                let mut seen = new != old || wt == 0;
                 // Colour only near the surface, where it belongs to it.
                 if let (Some(colors), Some(image)) = (block.color.as_deref_mut(), color) {
                     if sdf.abs() < c.truncation {
@@ -394,12 +448,13 @@ fn integrate_block(
                             let o = f32::from(old[ch]);
                             (o + (f32::from(new[ch]) - o) * reciprocal[usize::from(wt)] + 0.5) as u8
                         });
+                        seen |= colors[i] != old;
                     }
                 }
-                block.weight[i] = (wt + 1).min(c.max_weight);
-                changed = true;
+                readers |= readers_of[i] & 0u8.wrapping_sub(u8::from(seen));
+                weights = true;
             }
         }
     }
-    changed
+    (readers, weights)
 }

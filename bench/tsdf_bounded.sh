@@ -1,0 +1,90 @@
+#!/usr/bin/env bash
+# Bounded memory on a long walk: the simulated sensor walks LENGTH metres down
+# a corridor (floor, a wall, boxes and posts; generated here) and the TSDF map
+# is built twice, without and with --active-radius. Reports the peak resident
+# memory of each run (/usr/bin/time -v), the blocks held, the chunks written,
+# and whether the bounded run's mesh.ply (chunks joined with the rest) holds
+# exactly the unbounded run's triangles.
+#
+# Usage: bench/tsdf_bounded.sh [LENGTH] [VOXEL] [RADIUS]     (defaults 60, 0.02, reach + 0.1)
+set -euo pipefail
+cd "$(dirname "$0")/.."
+length=${1:-60}
+voxel=${2:-0.02}
+radius=${3:-}
+if [[ ! -x /usr/bin/time ]]; then
+  echo "error: /usr/bin/time (GNU time) is needed for peak memory" >&2
+  exit 1
+fi
+cargo build --release --quiet
+work=$(mktemp -d)
+trap 'rm -rf "$work"' EXIT
+# Scene and a straight walk looking ahead to the wall (TUM camera-to-world poses).
+python3 - "$length" "$work" <<'PY'
+import math, sys
+length, work = float(sys.argv[1]), sys.argv[2]
+with open(f"{work}/corridor.toml", "w") as f:
+    f.write(f'name = "corridor"\n[[object]]\nshape = "plane"\nsize = [{length + 10}, 8.0]\n'
+            f'translation = [{length / 2}, 0.0, 0.0]\nfloor = true\n'
+            f'[[object]]\nshape = "box"\nsize = [{length + 10}, 3.0, 0.1]\ntranslation = [{length / 2}, 1.5, 2.0]\n')
+    for i in range(int(length / 3)):
+        x = 1.5 + 3 * i
+        f.write(f'[[object]]\nshape = "box"\nsize = [0.6, 0.5, 0.4]\ntranslation = [{x}, 0.25, 1.5]\n'
+                f'rotation = [0.0, {17 * i}, 0.0]\n'
+                f'[[object]]\nshape = "cylinder"\nradius = 0.1\nheight = 1.2\ntranslation = [{x + 1.2}, 0.6, 1.2]\n')
+def norm(v):
+    n = math.sqrt(sum(c * c for c in v)); return [c / n for c in v]
+def cross(a, b):
+    return [a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2], a[0] * b[1] - a[1] * b[0]]
+z = norm([0.7, -0.5, 1.0]); x = norm(cross(z, [0, 1, 0])); y = cross(z, x)
+m = [[x[i], y[i], z[i]] for i in range(3)]  # columns: camera axes in world (x right, y down, z ahead)
+w = math.sqrt(max(0.0, 1 + m[0][0] + m[1][1] + m[2][2])) / 2
+q = [(m[2][1] - m[1][2]) / (4 * w), (m[0][2] - m[2][0]) / (4 * w), (m[1][0] - m[0][1]) / (4 * w), w]
+frames = int(length / 0.1)
+with open(f"{work}/walk.txt", "w") as f:
+    for i in range(frames):
+        f.write(f"{i} {0.1 * i} 1.3 -0.5 {q[0]} {q[1]} {q[2]} {q[3]}\n")
+
+PY
+frames=$(wc -l < "$work/walk.txt")
+run() {
+  local name=$1; shift
+  /usr/bin/time -v ./target/release/depthmesh simulate --scene "$work/corridor.toml" --map tsdf \
+    --voxel "$voxel" --path "tum:$work/walk.txt" --iterations "$frames" --quiet --out "$work/$name" "$@" \
+    2> "$work/$name.time"
+  grep "Maximum resident" "$work/$name.time" | awk '{print $NF}'
+}
+rss_full=$(run unbounded)
+if [[ -z $radius ]]; then
+  # The simulated Kinect's reach: 4 m along its corner rays (640×480, 60° vertical), plus the truncation.
+  radius=$(python3 -c "import math; t = math.tan(math.radians(30)); print(round(4 * math.sqrt(1 + t * t + (t * 4 / 3) ** 2) + 4 * $voxel + 0.1, 3))")
+fi
+rss_bounded=$(run bounded --active-radius "$radius")
+python3 - "$work" "$rss_full" "$rss_bounded" "$length" "$voxel" <<'PY'
+import json, struct, sys
+work, rss_full, rss_bounded, length, voxel = sys.argv[1], int(sys.argv[2]), int(sys.argv[3]), sys.argv[4], sys.argv[5]
+full = json.load(open(f"{work}/unbounded/summary.json")); bounded = json.load(open(f"{work}/bounded/summary.json"))
+def triangles(path):
+    """Triangles as sorted tuples of corner positions (float bits), each rotated to start at its smallest corner."""
+    data = open(path, "rb").read()
+    end = data.index(b"end_header\n") + len(b"end_header\n")
+    head = data[:end].decode().split("\n")
+    nv = int(next(l for l in head if l.startswith("element vertex")).split()[2])
+    nf = int(next(l for l in head if l.startswith("element face")).split()[2])
+    props = sum(1 for l in head if l.startswith("property float"))
+    size = 4 * props + 3 * sum(1 for l in head if l.startswith("property uchar"))
+    verts = [data[end + i * size:end + i * size + 12] for i in range(nv)]
+    out, at = [], end + nv * size
+    for _ in range(nf):
+        a, b, c = struct.unpack_from("<3i", data, at + 1); at += 13
+        t = (verts[a], verts[b], verts[c]); k = t.index(min(t))
+        out.append(t[k:] + t[:k])
+    out.sort()
+    return out
+same = triangles(f"{work}/unbounded/mesh.ply") == triangles(f"{work}/bounded/mesh.ply")
+print(f"walk {length} m, {full['frames']} frames, voxel {voxel} m")
+print(f"unbounded  peak RSS {rss_full / 1024:7.1f} MB   blocks {full['map_bytes'] // (512 * 4)}   triangles {full['triangles']}   {full['fps']:.1f} frames/s")
+print(f"bounded    peak RSS {rss_bounded / 1024:7.1f} MB   peak blocks {bounded['peak_blocks']}   evicted {bounded['evicted_blocks']}   "
+      f"chunks {bounded['chunks']}   triangles {bounded['triangles']}   {bounded['fps']:.1f} frames/s   (radius {bounded['active_radius']:.2f} m)")
+print(f"union of chunks + rest == unbounded mesh (exact triangles): {same}")
+PY
