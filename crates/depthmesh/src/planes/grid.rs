@@ -90,6 +90,17 @@ struct Binned {
     point: Vec3,
 }
 
+/// What one [`PlaneGrid::insert_points`] call did.
+#[derive(Clone, Debug, Default, PartialEq)]
+pub struct Inserted {
+    /// Points added (the others were non-finite or out of range).
+    pub points: usize,
+    /// Voxels that held no point before.
+    pub new_voxels: usize,
+    /// Every voxel whose statistics changed, each once.
+    pub changed: Vec<IVec3>,
+}
+
 /// Voxel statistics in a semi-sparse blockwise grid.
 ///
 /// Voxel `k` (global integer coordinates) covers `[k, k + 1) · voxel`; cell
@@ -106,6 +117,8 @@ pub struct PlaneGrid {
     keys: Vec<IVec3>,
     /// Each cell's n³ voxels, x fastest.
     cells: Vec<Box<[VoxelStats]>>,
+    /// Voxels holding at least one point.
+    occupied: usize,
 }
 
 impl PlaneGrid {
@@ -119,6 +132,7 @@ impl PlaneGrid {
             index: CellIndex::default(),
             keys: Vec::new(),
             cells: Vec::new(),
+            occupied: 0,
         })
     }
 
@@ -169,13 +183,13 @@ impl PlaneGrid {
     }
 
     /// Adds `points` to the statistics of their voxels, allocating the cells
-    /// they first touch; returns how many were added (non-finite and
-    /// out-of-range points are skipped).
+    /// they first touch; reports how many were added (non-finite and
+    /// out-of-range points are skipped) and which voxels changed.
     ///
     /// Points are binned and sorted by cell in parallel (stably, so each
     /// voxel sees its points in input order and the result does not depend
     /// on the thread count), then every touched cell is filled by one task.
-    pub fn insert_points(&mut self, points: &[Vec3]) -> usize {
+    pub fn insert_points(&mut self, points: &[Vec3]) -> Inserted {
         let mut binned: Vec<Binned> = points
             .par_iter()
             .filter_map(|&p| {
@@ -224,12 +238,36 @@ impl PlaneGrid {
                 (cell, &binned[range])
             })
             .collect();
-        jobs.into_par_iter().for_each(|(cell, pts)| {
-            for b in pts {
-                cell[b.local as usize].add_point(b.point.as_dvec3());
-            }
-        });
-        binned.len()
+        let n = self.n;
+        let per_cell: Vec<(usize, Vec<IVec3>)> = jobs
+            .into_par_iter()
+            .map(|(cell, pts)| {
+                let (mut new, mut changed) = (0, Vec::new());
+                // Sorted by voxel: a voxel's points are one run.
+                for run in pts.chunk_by(|a, b| a.local == b.local) {
+                    let stats = &mut cell[run[0].local as usize];
+                    new += usize::from(stats.count == 0);
+                    for b in run {
+                        stats.add_point(b.point.as_dvec3());
+                    }
+                    let l = run[0].local as i32;
+                    let local = IVec3::new(l % n, (l / n) % n, l / (n * n));
+                    changed.push(run[0].cell * n + local);
+                }
+                (new, changed)
+            })
+            .collect();
+        self.occupied += per_cell.iter().map(|(new, _)| new).sum::<usize>();
+        Inserted {
+            points: binned.len(),
+            new_voxels: per_cell.iter().map(|(new, _)| new).sum(),
+            changed: per_cell.into_iter().flat_map(|(_, c)| c).collect(),
+        }
+    }
+
+    /// Number of voxels holding at least one point.
+    pub fn occupied_count(&self) -> usize {
+        self.occupied
     }
 
     /// Statistics of voxel `v`, `None` when it holds no point.
@@ -339,7 +377,8 @@ mod tests {
     fn voxels_and_cells_are_addressed_consistently() {
         let mut g = grid();
         let p = Vec3::new(-0.01, 0.99, 1.01);
-        assert_eq!(g.insert_points(&[p, Vec3::NAN, Vec3::splat(1e12)]), 1);
+        let inserted = g.insert_points(&[p, Vec3::NAN, Vec3::splat(1e12)]);
+        assert_eq!(inserted.points, 1);
         let v = g.voxel_of(p).unwrap();
         assert_eq!(v, IVec3::new(-1, 19, 20));
         assert_eq!(g.voxel(v).unwrap().count, 1);
@@ -348,6 +387,8 @@ mod tests {
         let occ: Vec<_> = g.occupied_voxels().collect();
         assert_eq!(occ.len(), 1);
         assert_eq!(occ[0].0, v);
+        assert_eq!(inserted.changed, vec![v]);
+        assert_eq!((inserted.new_voxels, g.occupied_count()), (1, 1));
         assert!(g
             .corner_position(IVec3::new(2, -4, 20))
             .abs_diff_eq(Vec3::new(0.1, -0.2, 1.0), 1e-6));
@@ -378,6 +419,8 @@ mod tests {
         for (v, s) in a.occupied_voxels() {
             assert_close(s, b.voxel(v).unwrap());
         }
+        assert_eq!(a.occupied_count(), a.occupied_voxels().count());
+        assert_eq!(b.occupied_count(), a.occupied_count());
         let total: u32 = a.occupied_voxels().map(|(_, s)| s.count).sum();
         assert_eq!(total, 20_000);
     }
