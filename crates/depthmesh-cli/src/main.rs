@@ -5,6 +5,7 @@ mod demo;
 mod draw;
 mod export;
 mod output;
+mod planes;
 mod progress;
 mod reconstruct;
 mod simplify;

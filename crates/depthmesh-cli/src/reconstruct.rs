@@ -4,6 +4,7 @@ use crate::draw::canvas::Canvas;
 use crate::draw::colormap::normal_shade;
 use crate::export::RunExportArgs;
 use crate::output::{FrameStats, RunOutput};
+use crate::planes::{self, PlanesArgs};
 use crate::progress;
 use anyhow::{bail, Context, Result};
 use clap::{Args, ValueEnum};
@@ -11,6 +12,7 @@ use depthmesh::atomic::write_atomic;
 use depthmesh::dataset::{Dataset, DatasetOptions, FrameRange, IntrinsicsSpec};
 use depthmesh::mabdi::{MabdiConfig, MabdiMapper};
 use depthmesh::map::Mapper;
+use depthmesh::planes::PlanesMapper;
 use depthmesh::tsdf::mapper::TsdfMapper;
 use depthmesh::tsdf::raycast::RaycastImage;
 use depthmesh::tsdf::{TsdfConfig, BLOCK_VOXELS};
@@ -28,6 +30,8 @@ pub enum ReconstructMap {
     Tsdf,
     /// MABDI mesh addition.
     Mabdi,
+    /// Voxel planes: per-voxel statistics, a plane patch per planar 2×2×2 window.
+    Planes,
 }
 
 /// Flags of `depthmesh reconstruct`.
@@ -62,7 +66,9 @@ pub struct ReconstructArgs {
     /// Intrinsics fx,fy,cx,cy[,width,height] or a file (3×3 K, or "w h fx fy cx cy").
     #[arg(long)]
     pub intrinsics: Option<String>,
-    /// Re-mesh the changed blocks every N frames (tsdf; 0: once, at the end).
+    #[command(flatten)]
+    pub planes: PlanesArgs,
+    /// Re-mesh the changed blocks (tsdf) or windows (planes) every N frames (0: once, at the end).
     #[arg(long, default_value_t = 0)]
     pub remesh_every: u32,
     /// Write a shaded ray-cast "status image" of the map every N frames (tsdf).
@@ -125,6 +131,11 @@ pub fn run(args: &ReconstructArgs, quiet: bool) -> Result<()> {
         ReconstructMap::Mabdi => RealMap::Mabdi(Box::new(MabdiMapper::new(MabdiConfig::thesis(
             k, 0.8, 4.0,
         ))?)),
+        ReconstructMap::Planes => {
+            let mut mapper = args.planes.mapper(k)?;
+            mapper.remesh_every = args.remesh_every;
+            RealMap::Planes(Box::new(mapper))
+        }
     };
     let mut raycast = RaycastImage::default();
     let mut out = RunOutput::create(&args.out)?;
@@ -198,6 +209,13 @@ pub fn run(args: &ReconstructArgs, quiet: bool) -> Result<()> {
             let bytes = m.stats().bytes;
             (m.name(), bytes, m.mesh().clone())
         }
+        RealMap::Planes(p) => {
+            // The windows changed since the last re-mesh, then assembly.
+            planes::summarise(p, &mut summary);
+            summary.insert("mesh_seconds".into(), json!(start.elapsed().as_secs_f64()));
+            let bytes = p.stats().bytes;
+            (p.name(), bytes, p.mesh().clone())
+        }
     };
     out.finish(name, &mesh, bytes, summary)?;
     args.export.write(&mesh, &args.out)?;
@@ -239,6 +257,7 @@ fn write_status_image(
 enum RealMap {
     Tsdf(Box<TsdfMapper>),
     Mabdi(Box<MabdiMapper>),
+    Planes(Box<PlanesMapper>),
 }
 
 impl RealMap {
@@ -246,6 +265,7 @@ impl RealMap {
         match self {
             RealMap::Tsdf(m) => m.as_mut(),
             RealMap::Mabdi(m) => m.as_mut(),
+            RealMap::Planes(m) => m.as_mut(),
         }
     }
 }

@@ -4,7 +4,8 @@
 use crate::export::RunExportArgs;
 use crate::output::{FrameStats, RunOutput};
 use crate::progress;
-use crate::views::{Dashboard, MapperView};
+use crate::planes::{self, PlanesArgs};
+use crate::views::{self, Dashboard, MapperView};
 use anyhow::{bail, Context, Result};
 use clap::{Args, ValueEnum};
 use depthmesh::eval::fraction_within;
@@ -12,6 +13,7 @@ use depthmesh::mabdi::classify::Threshold;
 use depthmesh::mabdi::{MabdiConfig, MabdiMapper, NaiveMapper};
 use depthmesh::map::Mapper;
 use depthmesh::mesh::ply::{write_ply, PlyFormat};
+use depthmesh::planes::PlanesMapper;
 use depthmesh::sim::{NoiseModel, PathSpec, Scene, SceneOptions, SimulatedSensor};
 use depthmesh::tsdf::mapper::TsdfMapper;
 use depthmesh::tsdf::TsdfConfig;
@@ -31,6 +33,8 @@ pub enum MapKind {
     Naive,
     /// TSDF fusion with marching cubes.
     Tsdf,
+    /// Voxel planes: per-voxel statistics, a plane patch per planar 2×2×2 window.
+    Planes,
 }
 
 /// Flags of `depthmesh simulate`.
@@ -69,9 +73,15 @@ pub struct SimulateArgs {
     /// Voxel size in metres (tsdf; truncation 4 voxels).
     #[arg(long, default_value_t = 0.01)]
     pub voxel: f32,
+    #[command(flatten)]
+    pub planes: PlanesArgs,
     /// Write a dashboard image per iteration and the element plot (mabdi, naive).
     #[arg(long)]
     pub dashboard: bool,
+    /// Write `view.png`: the final mesh, lit and in its colours, from the
+    /// dashboard's third-person camera.
+    #[arg(long)]
+    pub view: bool,
     /// Output folder.
     #[arg(long)]
     pub out: PathBuf,
@@ -85,6 +95,7 @@ enum SimMap {
     Mabdi(Box<MabdiMapper>),
     Naive(Box<NaiveMapper>),
     Tsdf(Box<TsdfMapper>),
+    Planes(Box<PlanesMapper>),
 }
 
 impl SimMap {
@@ -93,6 +104,7 @@ impl SimMap {
             SimMap::Mabdi(m) => m.as_mut(),
             SimMap::Naive(m) => m.as_mut(),
             SimMap::Tsdf(m) => m.as_mut(),
+            SimMap::Planes(m) => m.as_mut(),
         }
     }
 
@@ -112,7 +124,7 @@ impl SimMap {
                 expected: None,
                 classes: m.classes(),
             },
-            SimMap::Tsdf(_) => return None,
+            SimMap::Tsdf(_) | SimMap::Planes(_) => return None,
         })
     }
 }
@@ -168,20 +180,19 @@ pub fn run_scene(args: &SimulateArgs, scene: &Scene, quiet: bool) -> Result<RunS
     if args.keep_removed {
         config.removal = None;
     }
+    if args.dashboard && matches!(args.map, MapKind::Tsdf | MapKind::Planes) {
+        bail!("--dashboard shows mesh addition: use it with --map mabdi or --map naive");
+    }
     let mut map = match args.map {
         MapKind::Mabdi => SimMap::Mabdi(Box::new(MabdiMapper::new(config)?)),
         MapKind::Naive => SimMap::Naive(Box::new(NaiveMapper::new(config)?)),
-        MapKind::Tsdf => {
-            if args.dashboard {
-                bail!("--dashboard shows mesh addition: use it with --map mabdi or --map naive");
-            }
-            SimMap::Tsdf(Box::new(TsdfMapper::new(
-                TsdfConfig::new(args.voxel),
-                sensor.intrinsics,
-                sensor.near,
-                sensor.far,
-            )?))
-        }
+        MapKind::Tsdf => SimMap::Tsdf(Box::new(TsdfMapper::new(
+            TsdfConfig::new(args.voxel),
+            sensor.intrinsics,
+            sensor.near,
+            sensor.far,
+        )?)),
+        MapKind::Planes => SimMap::Planes(Box::new(args.planes.mapper(sensor.intrinsics)?)),
     };
     let mut out = RunOutput::create(&args.out)?;
     let mut dashboard = args
@@ -238,6 +249,10 @@ pub fn run_scene(args: &SimulateArgs, scene: &Scene, quiet: bool) -> Result<RunS
     if let Some(d) = dashboard.as_ref() {
         d.element_plot(&out.frames, &out.path("elements.png"))?;
     }
+    let mut summary = Map::new();
+    if let SimMap::Planes(p) = &mut map {
+        planes::summarise(p, &mut summary);
+    }
     let mapper = map.mapper();
     let stats = mapper.stats();
     let name = mapper.name();
@@ -246,9 +261,9 @@ pub fn run_scene(args: &SimulateArgs, scene: &Scene, quiet: bool) -> Result<RunS
     let spacing = ((mesh.area() / 1.0e6).sqrt() as f32).max(0.002);
     let within = fraction_within(mesh, &truth, 0.005, spacing);
     let within_1cm = fraction_within(mesh, &truth, 0.01, spacing);
+    let within_2cm = fraction_within(mesh, &truth, 0.02, spacing);
     let column = |name: &str| -> f64 { out.frames.iter().filter_map(|f| f.report.get(name)).sum() };
     let naive = column("naive_elements");
-    let mut summary = Map::new();
     summary.insert("scene".into(), scene.name.clone().into());
     summary.insert("iterations".into(), args.iterations.into());
     summary.insert("noise".into(), args.noise.to_string().into());
@@ -280,6 +295,10 @@ pub fn run_scene(args: &SimulateArgs, scene: &Scene, quiet: bool) -> Result<RunS
     // null for an empty map: there is no surface to judge.
     summary.insert("surface_within_5mm".into(), json!(within));
     summary.insert("surface_within_1cm".into(), json!(within_1cm));
+    summary.insert("surface_within_2cm".into(), json!(within_2cm));
+    if args.view {
+        views::write_view(scene, &poses, mesh, &out.path("view.png"))?;
+    }
     let summary = out.finish(name, mesh, stats.bytes, summary)?;
     args.export.write(mesh, &args.out)?;
     Ok(RunSummary { summary })

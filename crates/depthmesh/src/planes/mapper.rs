@@ -176,6 +176,11 @@ impl PlanesMapper {
         })
     }
 
+    /// The planarity noise ε in metres.
+    pub fn epsilon(&self) -> f64 {
+        self.epsilon
+    }
+
     /// The voxel statistics.
     pub fn grid(&self) -> &PlaneGrid {
         &self.grid
