@@ -1,11 +1,15 @@
 //! `depthmesh bench`: speed figures measured on generated data, printed as
 //! JSON so scripts can set them beside a reference implementation's.
 
-use anyhow::{bail, Result};
+use crate::planes::PlanesArgs;
+use anyhow::{bail, Context, Result};
 use clap::{Args, Subcommand};
 use depthmesh::atomic::write_atomic;
 use depthmesh::mabdi::{MabdiConfig, MabdiMapper, NaiveMapper};
+use depthmesh::dataset::{Dataset, DatasetOptions, FrameRange};
 use depthmesh::map::Mapper;
+use depthmesh::planes::mapper::frame_points;
+use depthmesh::planes::PlaneGrid;
 use depthmesh::mesh::ply::{write_ply, PlyFormat};
 use depthmesh::sim::{NoiseModel, PathSpec, Scene, SceneOptions, SimulatedSensor};
 use depthmesh::trajectory::format_tum;
@@ -23,6 +27,24 @@ pub enum BenchCommand {
     /// Time full MABDI iterations (render D, render E, classify, mesh, append)
     /// against a global mesh of at least `--min-triangles`.
     Mabdi(MabdiBenchArgs),
+    /// Points per second folded into the voxel-planes statistics
+    /// (`insert_points`), on the world points of recorded depth frames.
+    Planes(PlanesBenchArgs),
+}
+
+/// Flags of `depthmesh bench planes`.
+#[derive(Args, Debug)]
+pub struct PlanesBenchArgs {
+    /// A 7-Scenes frames folder or TUM RGB-D folder with poses.
+    pub dataset: PathBuf,
+    /// Frames to read from the start (their points are inserted in one timed pass).
+    #[arg(long, default_value_t = 100)]
+    pub frames: usize,
+    /// Timed passes, each into a fresh map; the median is reported.
+    #[arg(long, default_value_t = 5)]
+    pub repeats: u32,
+    #[command(flatten)]
+    pub planes: PlanesArgs,
 }
 
 /// Flags of `depthmesh bench mabdi`.
@@ -44,12 +66,66 @@ pub struct MabdiBenchArgs {
 pub fn run(command: &BenchCommand) -> Result<()> {
     match command {
         BenchCommand::Mabdi(args) => mabdi(args),
+        BenchCommand::Planes(args) => planes(args),
     }
 }
 
 fn median(mut v: Vec<f64>) -> f64 {
     v.sort_by(f64::total_cmp);
     v[v.len() / 2]
+}
+
+fn planes(args: &PlanesBenchArgs) -> Result<()> {
+    if args.frames == 0 || args.repeats == 0 {
+        bail!("--frames and --repeats must be at least 1");
+    }
+    let options = DatasetOptions {
+        frames: Some(FrameRange {
+            start: 0,
+            end: Some(args.frames),
+        }),
+        ..DatasetOptions::default()
+    };
+    let dataset = Dataset::open(&args.dataset, &options)?;
+    let k = dataset.intrinsics();
+    // Each frame's points as the mapper makes them, read before timing.
+    let mut frames = Vec::with_capacity(dataset.len());
+    for frame in dataset.frames() {
+        let frame = frame?;
+        let pose = frame
+            .pose
+            .with_context(|| format!("frame {} has no pose", frame.index))?;
+        let mut points = Vec::new();
+        frame_points(&frame.depth, &k, &pose, &mut points);
+        frames.push(points);
+    }
+    let total: usize = frames.iter().map(Vec::len).sum();
+    let mut seconds = Vec::new();
+    let mut voxels = 0;
+    for _ in 0..args.repeats {
+        let mut grid = PlaneGrid::new(args.planes.config().grid)?;
+        let start = Instant::now();
+        for points in &frames {
+            grid.insert_points(points);
+        }
+        seconds.push(start.elapsed().as_secs_f64());
+        voxels = grid.occupied_count();
+    }
+    let s = median(seconds);
+    println!(
+        "{}",
+        json!({
+            "bench": "planes_insert",
+            "frames": frames.len(),
+            "points": total,
+            "voxels": voxels,
+            "voxel": args.planes.plane_voxel,
+            "threads": rayon::current_num_threads(),
+            "median_seconds": s,
+            "points_per_second": total as f64 / s,
+        })
+    );
+    Ok(())
 }
 
 fn mabdi(args: &MabdiBenchArgs) -> Result<()> {

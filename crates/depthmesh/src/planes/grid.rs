@@ -85,10 +85,18 @@ type CellIndex = HashMap<IVec3, u32, BuildHasherDefault<KeyHasher>>;
 /// A point on its way into the grid: where it goes and where it is.
 #[derive(Clone, Copy)]
 struct Binned {
-    cell: IVec3,
+    /// Index of its cell in the cell list, [`NEW_CELL`] before allocation,
+    /// or [`SKIP`].
+    slot: u32,
+    /// Index of its voxel inside the cell.
     local: u32,
     point: Vec3,
 }
+
+/// Slot of a point whose cell is not allocated yet.
+const NEW_CELL: u32 = u32::MAX;
+/// Slot of a point that has no voxel (non-finite or out of range).
+const SKIP: u32 = u32::MAX - 1;
 
 /// What one [`PlaneGrid::insert_points`] call did.
 #[derive(Clone, Debug, Default, PartialEq)]
@@ -157,14 +165,21 @@ impl PlaneGrid {
         // f64 so a point a rounding error inside a voxel border is binned
         // the same way in every call.
         let s = 1.0 / f64::from(self.config.voxel);
-        let v = [p.x, p.y, p.z].map(|c| (f64::from(c) * s).floor());
         // Headroom below i32::MAX so `cell * n + n` and `corner ± 1` cannot overflow.
         let limit = f64::from(i32::MAX / 4);
-        if v.iter().all(|c| c.is_finite() && c.abs() < limit) {
-            Some(IVec3::new(v[0] as i32, v[1] as i32, v[2] as i32))
-        } else {
-            None
+        let mut v = [0i32; 3];
+        for (out, c) in v.iter_mut().zip([p.x, p.y, p.z]) {
+            let x = f64::from(c) * s;
+            // Also false for NaN.
+            if !(x.abs() < limit) {
+                return None;
+            }
+            // Floor by truncation: `f64::floor` is a libm call without SSE4.1,
+            // and binning is the hottest loop of insertion.
+            let t = x as i32;
+            *out = t - i32::from(f64::from(t) > x);
         }
+        Some(IVec3::from_array(v))
     }
 
     /// Position of the grid vertex `corner` (the lowest corner of voxel `corner`).
@@ -186,83 +201,122 @@ impl PlaneGrid {
     /// they first touch; reports how many were added (non-finite and
     /// out-of-range points are skipped) and which voxels changed.
     ///
-    /// Points are binned and sorted by cell in parallel (stably, so each
-    /// voxel sees its points in input order and the result does not depend
-    /// on the thread count), then every touched cell is filled by one task.
+    /// Points are binned in parallel, grouped by cell with a stable counting
+    /// sort (a frame touches few cells, and consecutive pixels mostly share
+    /// one), then every touched cell is filled by one task. Each voxel sees
+    /// its points in input order, so the result does not depend on the
+    /// thread count or on how the points are split into calls.
     pub fn insert_points(&mut self, points: &[Vec3]) -> Inserted {
+        // Bin in parallel (an indexed map, so the output is allocated once);
+        // cells already in the index get their slot here
+        // (consecutive points mostly share a cell, so the last one is
+        // remembered), new ones are marked and allocated below.
         let mut binned: Vec<Binned> = points
             .par_iter()
-            .filter_map(|&p| {
-                let v = self.voxel_of(p)?;
-                let (cell, local) = self.split(v);
-                Some(Binned {
-                    cell,
-                    local: local as u32,
-                    point: p,
-                })
-            })
+            .map_init(
+                || None,
+                |last: &mut Option<(IVec3, u32)>, &p| {
+                    let Some(v) = self.voxel_of(p) else {
+                        return Binned {
+                            slot: SKIP,
+                            local: 0,
+                            point: p,
+                        };
+                    };
+                    let (cell, local) = self.split(v);
+                    let slot = match *last {
+                        Some((c, slot)) if c == cell => slot,
+                        _ => {
+                            let slot = self.index.get(&cell).copied().unwrap_or(NEW_CELL);
+                            *last = Some((cell, slot));
+                            slot
+                        }
+                    };
+                    Binned {
+                        slot,
+                        local: local as u32,
+                        point: p,
+                    }
+                },
+            )
             .collect();
-        binned.par_sort_by_key(|b| (b.cell.x, b.cell.y, b.cell.z, b.local));
-
-        // Runs of one cell each; new cells are allocated here, serially,
-        // because the index is shared.
-        let voxels = (self.n as usize).pow(3);
-        let mut runs: Vec<(u32, std::ops::Range<usize>)> = Vec::new();
-        let mut start = 0;
-        while start < binned.len() {
-            let cell = binned[start].cell;
-            let mut end = start + 1;
-            while end < binned.len() && binned[end].cell == cell {
-                end += 1;
-            }
-            let next = self.cells.len() as u32;
-            let slot = *self.index.entry(cell).or_insert(next);
-            if slot == next {
-                self.keys.push(cell);
-                self.cells
-                    .push(vec![VoxelStats::EMPTY; voxels].into_boxed_slice());
-            }
-            runs.push((slot, start..end));
-            start = end;
+        binned.retain(|b| b.slot != SKIP);
+        // New cells are allocated serially, because the index is shared.
+        for b in binned.iter_mut().filter(|b| b.slot == NEW_CELL) {
+            let v = self.voxel_of(b.point).expect("binned points have a voxel");
+            b.slot = self.slot(self.split(v).0);
         }
 
-        // Each run owns a distinct cell: hand out disjoint `&mut`s.
-        let mut slots: Vec<Option<&mut [VoxelStats]>> =
-            self.cells.iter_mut().map(|c| Some(&mut **c)).collect();
-        let jobs: Vec<(&mut [VoxelStats], &[Binned])> = runs
-            .into_iter()
-            .map(|(slot, range)| {
-                let cell = slots[slot as usize]
-                    .take()
-                    .expect("each cell appears in one run after the sort");
-                (cell, &binned[range])
-            })
-            .collect();
+        // Stable counting sort by slot: `starts[s]..starts[s + 1]` is cell s.
+        let mut starts = vec![0usize; self.cells.len() + 1];
+        for b in &binned {
+            starts[b.slot as usize + 1] += 1;
+        }
+        for i in 1..starts.len() {
+            starts[i] += starts[i - 1];
+        }
+        let mut next = starts.clone();
+        let mut sorted = vec![(0u32, Vec3::ZERO); binned.len()];
+        for b in &binned {
+            let i = &mut next[b.slot as usize];
+            sorted[*i] = (b.local, b.point);
+            *i += 1;
+        }
+
+        // Each touched cell is one job with a distinct `&mut`.
         let n = self.n;
+        let jobs: Vec<(IVec3, &mut [VoxelStats], &[(u32, Vec3)])> = self
+            .cells
+            .iter_mut()
+            .zip(&self.keys)
+            .enumerate()
+            .filter(|(s, _)| starts[s + 1] > starts[*s])
+            .map(|(s, (cell, &key))| (key, &mut **cell, &sorted[starts[s]..starts[s + 1]]))
+            .collect();
         let per_cell: Vec<(usize, Vec<IVec3>)> = jobs
             .into_par_iter()
-            .map(|(cell, pts)| {
-                let (mut new, mut changed) = (0, Vec::new());
-                // Sorted by voxel: a voxel's points are one run.
-                for run in pts.chunk_by(|a, b| a.local == b.local) {
-                    let stats = &mut cell[run[0].local as usize];
+            .map(|(key, cell, pts)| {
+                let mut touched = vec![0u64; cell.len().div_ceil(64)];
+                let mut new = 0;
+                for &(local, p) in pts {
+                    let stats = &mut cell[local as usize];
                     new += usize::from(stats.count == 0);
-                    for b in run {
-                        stats.add_point(b.point.as_dvec3());
-                    }
-                    let l = run[0].local as i32;
-                    let local = IVec3::new(l % n, (l / n) % n, l / (n * n));
-                    changed.push(run[0].cell * n + local);
+                    stats.add_point(p.as_dvec3());
+                    touched[local as usize / 64] |= 1 << (local % 64);
                 }
+                let changed = touched
+                    .iter()
+                    .enumerate()
+                    .flat_map(|(w, &bits)| {
+                        (0..64).filter(move |b| bits >> b & 1 == 1).map(move |b| {
+                            let l = (w * 64 + b) as i32;
+                            key * n + IVec3::new(l % n, (l / n) % n, l / (n * n))
+                        })
+                    })
+                    .collect();
                 (new, changed)
             })
             .collect();
-        self.occupied += per_cell.iter().map(|(new, _)| new).sum::<usize>();
+        let new_voxels = per_cell.iter().map(|(new, _)| new).sum();
+        self.occupied += new_voxels;
         Inserted {
             points: binned.len(),
-            new_voxels: per_cell.iter().map(|(new, _)| new).sum(),
+            new_voxels,
             changed: per_cell.into_iter().flat_map(|(_, c)| c).collect(),
         }
+    }
+
+    /// The slot of `cell` in the cell list, allocating it when new.
+    fn slot(&mut self, cell: IVec3) -> u32 {
+        let next = self.cells.len() as u32;
+        let slot = *self.index.entry(cell).or_insert(next);
+        if slot == next {
+            self.keys.push(cell);
+            let voxels = (self.n as usize).pow(3);
+            self.cells
+                .push(vec![VoxelStats::EMPTY; voxels].into_boxed_slice());
+        }
+        slot
     }
 
     /// Number of voxels holding at least one point.
