@@ -9,6 +9,7 @@ use depthmesh::mabdi::{MabdiConfig, MabdiMapper, NaiveMapper};
 use depthmesh::dataset::{Dataset, DatasetOptions, FrameRange};
 use depthmesh::map::Mapper;
 use depthmesh::planes::mapper::frame_points;
+use depthmesh::planes::runs::depth_runs;
 use depthmesh::planes::PlaneGrid;
 use depthmesh::mesh::ply::{write_ply, PlyFormat};
 use depthmesh::sim::{NoiseModel, PathSpec, Scene, SceneOptions, SimulatedSensor};
@@ -27,8 +28,9 @@ pub enum BenchCommand {
     /// Time full MABDI iterations (render D, render E, classify, mesh, append)
     /// against a global mesh of at least `--min-triangles`.
     Mabdi(MabdiBenchArgs),
-    /// Points per second folded into the voxel-planes statistics
-    /// (`insert_points`), on the world points of recorded depth frames.
+    /// Points per second folded into the voxel-planes statistics on
+    /// recorded depth frames: from the depth images as the mapper does it,
+    /// and from ready world points (`insert_points`).
     Planes(PlanesBenchArgs),
 }
 
@@ -88,41 +90,62 @@ fn planes(args: &PlanesBenchArgs) -> Result<()> {
     };
     let dataset = Dataset::open(&args.dataset, &options)?;
     let k = dataset.intrinsics();
-    // Each frame's points as the mapper makes them, read before timing.
+    // Frames are read (PNG decoding) before timing.
     let mut frames = Vec::with_capacity(dataset.len());
     for frame in dataset.frames() {
         let frame = frame?;
         let pose = frame
             .pose
             .with_context(|| format!("frame {} has no pose", frame.index))?;
-        let mut points = Vec::new();
-        frame_points(&frame.depth, &k, &pose, &mut points);
-        frames.push(points);
+        frames.push((frame.depth, pose));
     }
-    let total: usize = frames.iter().map(Vec::len).sum();
-    let mut seconds = Vec::new();
-    let mut voxels = 0;
+    let config = args.planes.config().grid;
+    // The mapper's path: pixels → world points → runs → statistics.
+    let mut runs = Vec::new();
+    let (mut depth_seconds, mut points, mut voxels) = (Vec::new(), 0, 0);
     for _ in 0..args.repeats {
-        let mut grid = PlaneGrid::new(args.planes.config().grid)?;
+        let mut grid = PlaneGrid::new(config)?;
         let start = Instant::now();
-        for points in &frames {
-            grid.insert_points(points);
+        points = 0;
+        for (depth, pose) in &frames {
+            depth_runs(&grid, depth, &k, pose, &mut runs);
+            points += grid.insert_stats(&runs).points;
         }
-        seconds.push(start.elapsed().as_secs_f64());
+        depth_seconds.push(start.elapsed().as_secs_f64());
         voxels = grid.occupied_count();
     }
-    let s = median(seconds);
+    // A point cloud's path: world points (made before timing) → statistics.
+    let clouds: Vec<Vec<_>> = frames
+        .iter()
+        .map(|(depth, pose)| {
+            let mut cloud = Vec::new();
+            frame_points(depth, &k, pose, &mut cloud);
+            cloud
+        })
+        .collect();
+    let mut cloud_seconds = Vec::new();
+    for _ in 0..args.repeats {
+        let mut grid = PlaneGrid::new(config)?;
+        let start = Instant::now();
+        for cloud in &clouds {
+            grid.insert_points(cloud);
+        }
+        cloud_seconds.push(start.elapsed().as_secs_f64());
+    }
+    let (depth_s, cloud_s) = (median(depth_seconds), median(cloud_seconds));
     println!(
         "{}",
         json!({
             "bench": "planes_insert",
             "frames": frames.len(),
-            "points": total,
+            "points": points,
             "voxels": voxels,
             "voxel": args.planes.plane_voxel,
             "threads": rayon::current_num_threads(),
-            "median_seconds": s,
-            "points_per_second": total as f64 / s,
+            "depth_median_seconds": depth_s,
+            "points_per_second": points as f64 / depth_s,
+            "cloud_median_seconds": cloud_s,
+            "cloud_points_per_second": points as f64 / cloud_s,
         })
     );
     Ok(())

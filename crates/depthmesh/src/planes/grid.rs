@@ -82,7 +82,7 @@ impl PlaneGridConfig {
 /// Cell key → index into the cell list.
 type CellIndex = HashMap<IVec3, u32, BuildHasherDefault<KeyHasher>>;
 
-/// A point on its way into the grid: where it goes and where it is.
+/// An item (point or statistics) on its way into the grid: where it goes.
 #[derive(Clone, Copy)]
 struct Binned {
     /// Index of its cell in the cell list, [`NEW_CELL`] before allocation,
@@ -90,23 +90,49 @@ struct Binned {
     slot: u32,
     /// Index of its voxel inside the cell.
     local: u32,
-    point: Vec3,
+    /// Index of the item in the input.
+    item: u32,
 }
 
-/// Slot of a point whose cell is not allocated yet.
+/// Slot of an item whose cell is not allocated yet.
 const NEW_CELL: u32 = u32::MAX;
-/// Slot of a point that has no voxel (non-finite or out of range).
+/// Slot of an item that has no voxel (non-finite or out of range).
 const SKIP: u32 = u32::MAX - 1;
 
 /// What one [`PlaneGrid::insert_points`] call did.
 #[derive(Clone, Debug, Default, PartialEq)]
 pub struct Inserted {
-    /// Points added (the others were non-finite or out of range).
+    /// Items (points or statistics) added; the others were non-finite or out of range.
+    pub items: usize,
+    /// Points added.
     pub points: usize,
     /// Voxels that held no point before.
     pub new_voxels: usize,
     /// Every voxel whose statistics changed, each once.
     pub changed: Vec<IVec3>,
+}
+
+/// The voxel holding `p` for voxels of `1 / scale` metres, see
+/// [`PlaneGrid::voxel_of`].
+#[inline]
+fn voxel_at(scale: f64, p: Vec3) -> Option<IVec3> {
+    // Headroom below i32::MAX so `cell * n + n` and `corner ± 1` cannot overflow.
+    let limit = f64::from(i32::MAX / 4);
+    let mut v = [0i32; 3];
+    for (out, c) in v.iter_mut().zip([p.x, p.y, p.z]) {
+        // f64 so a point a rounding error inside a voxel border is binned
+        // the same way in every call.
+        let x = f64::from(c) * scale;
+        // Also false for NaN.
+        if !(x.abs() < limit) {
+            return None;
+        }
+        // Floor by truncation: `f64::floor` is a libm call without SSE4.1,
+        // and binning is the hottest loop of insertion.
+        let t = x as i32;
+        *out = t - i32::from(f64::from(t) > x);
+    }
+    Some(IVec3::from_array(v))
 }
 
 /// Voxel statistics in a semi-sparse blockwise grid.
@@ -162,24 +188,7 @@ impl PlaneGrid {
     /// The voxel holding `p`, or `None` for a non-finite point or one so far
     /// away its voxel coordinates would overflow.
     pub fn voxel_of(&self, p: Vec3) -> Option<IVec3> {
-        // f64 so a point a rounding error inside a voxel border is binned
-        // the same way in every call.
-        let s = 1.0 / f64::from(self.config.voxel);
-        // Headroom below i32::MAX so `cell * n + n` and `corner ± 1` cannot overflow.
-        let limit = f64::from(i32::MAX / 4);
-        let mut v = [0i32; 3];
-        for (out, c) in v.iter_mut().zip([p.x, p.y, p.z]) {
-            let x = f64::from(c) * s;
-            // Also false for NaN.
-            if !(x.abs() < limit) {
-                return None;
-            }
-            // Floor by truncation: `f64::floor` is a libm call without SSE4.1,
-            // and binning is the hottest loop of insertion.
-            let t = x as i32;
-            *out = t - i32::from(f64::from(t) > x);
-        }
-        Some(IVec3::from_array(v))
+        voxel_at(1.0 / f64::from(self.config.voxel), p)
     }
 
     /// Position of the grid vertex `corner` (the lowest corner of voxel `corner`).
@@ -200,27 +209,64 @@ impl PlaneGrid {
     /// Adds `points` to the statistics of their voxels, allocating the cells
     /// they first touch; reports how many were added (non-finite and
     /// out-of-range points are skipped) and which voxels changed.
+    pub fn insert_points(&mut self, points: &[Vec3]) -> Inserted {
+        let scale = 1.0 / f64::from(self.config.voxel);
+        let mut inserted = self.fill(
+            points,
+            |p| voxel_at(scale, *p),
+            |s, p| s.add_point(p.as_dvec3()),
+        );
+        inserted.points = inserted.items;
+        inserted
+    }
+
+    /// Merges ready-made statistics into voxels (eqs. 2–3), e.g. those of
+    /// runs of pixels gathered by [`super::runs::depth_runs`]; out-of-range
+    /// voxels are skipped.
+    pub fn insert_stats(&mut self, items: &[(IVec3, VoxelStats)]) -> Inserted {
+        let limit = i32::MAX / 4;
+        let mut inserted = self.fill(
+            items,
+            |(v, _)| (v.abs().max_element() < limit).then_some(*v),
+            |s, (_, other)| s.merge(other),
+        );
+        inserted.points = items
+            .iter()
+            .filter(|(v, _)| v.abs().max_element() < limit)
+            .map(|(_, s)| s.count as usize)
+            .sum();
+        inserted
+    }
+
+    /// Folds `items` into the voxels `voxel` assigns them (`None`: skip)
+    /// with `add`, allocating the cells they first touch.
     ///
-    /// Points are binned in parallel, grouped by cell with a stable counting
+    /// Items are binned in parallel, grouped by cell with a stable counting
     /// sort (a frame touches few cells, and consecutive pixels mostly share
     /// one), then every touched cell is filled by one task. Each voxel sees
-    /// its points in input order, so the result does not depend on the
-    /// thread count or on how the points are split into calls.
-    pub fn insert_points(&mut self, points: &[Vec3]) -> Inserted {
+    /// its items in input order, so the result does not depend on the
+    /// thread count.
+    fn fill<T: Sync>(
+        &mut self,
+        items: &[T],
+        voxel: impl Fn(&T) -> Option<IVec3> + Sync,
+        add: impl Fn(&mut VoxelStats, &T) + Sync,
+    ) -> Inserted {
         // Bin in parallel (an indexed map, so the output is allocated once);
-        // cells already in the index get their slot here
-        // (consecutive points mostly share a cell, so the last one is
-        // remembered), new ones are marked and allocated below.
-        let mut binned: Vec<Binned> = points
+        // cells already in the index get their slot here (consecutive items
+        // mostly share a cell, so the last one is remembered), new ones are
+        // marked and allocated below.
+        let mut binned: Vec<Binned> = items
             .par_iter()
+            .enumerate()
             .map_init(
                 || None,
-                |last: &mut Option<(IVec3, u32)>, &p| {
-                    let Some(v) = self.voxel_of(p) else {
+                |last: &mut Option<(IVec3, u32)>, (item, t)| {
+                    let Some(v) = voxel(t) else {
                         return Binned {
                             slot: SKIP,
                             local: 0,
-                            point: p,
+                            item: item as u32,
                         };
                     };
                     let (cell, local) = self.split(v);
@@ -235,7 +281,7 @@ impl PlaneGrid {
                     Binned {
                         slot,
                         local: local as u32,
-                        point: p,
+                        item: item as u32,
                     }
                 },
             )
@@ -243,7 +289,7 @@ impl PlaneGrid {
         binned.retain(|b| b.slot != SKIP);
         // New cells are allocated serially, because the index is shared.
         for b in binned.iter_mut().filter(|b| b.slot == NEW_CELL) {
-            let v = self.voxel_of(b.point).expect("binned points have a voxel");
+            let v = voxel(&items[b.item as usize]).expect("binned items have a voxel");
             b.slot = self.slot(self.split(v).0);
         }
 
@@ -256,16 +302,16 @@ impl PlaneGrid {
             starts[i] += starts[i - 1];
         }
         let mut next = starts.clone();
-        let mut sorted = vec![(0u32, Vec3::ZERO); binned.len()];
+        let mut sorted = vec![(0u32, 0u32); binned.len()];
         for b in &binned {
             let i = &mut next[b.slot as usize];
-            sorted[*i] = (b.local, b.point);
+            sorted[*i] = (b.local, b.item);
             *i += 1;
         }
 
         // Each touched cell is one job with a distinct `&mut`.
         let n = self.n;
-        let jobs: Vec<(IVec3, &mut [VoxelStats], &[(u32, Vec3)])> = self
+        let jobs: Vec<(IVec3, &mut [VoxelStats], &[(u32, u32)])> = self
             .cells
             .iter_mut()
             .zip(&self.keys)
@@ -275,13 +321,13 @@ impl PlaneGrid {
             .collect();
         let per_cell: Vec<(usize, Vec<IVec3>)> = jobs
             .into_par_iter()
-            .map(|(key, cell, pts)| {
+            .map(|(key, cell, entries)| {
                 let mut touched = vec![0u64; cell.len().div_ceil(64)];
                 let mut new = 0;
-                for &(local, p) in pts {
+                for &(local, item) in entries {
                     let stats = &mut cell[local as usize];
                     new += usize::from(stats.count == 0);
-                    stats.add_point(p.as_dvec3());
+                    add(stats, &items[item as usize]);
                     touched[local as usize / 64] |= 1 << (local % 64);
                 }
                 let changed = touched
@@ -300,7 +346,8 @@ impl PlaneGrid {
         let new_voxels = per_cell.iter().map(|(new, _)| new).sum();
         self.occupied += new_voxels;
         Inserted {
-            points: binned.len(),
+            items: binned.len(),
+            points: 0,
             new_voxels,
             changed: per_cell.into_iter().flat_map(|(_, c)| c).collect(),
         }

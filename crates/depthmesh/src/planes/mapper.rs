@@ -2,8 +2,10 @@
 //! become world points folded into the voxel statistics, and the 2×2×2
 //! windows whose statistics changed are re-meshed into plane patches.
 
-use super::grid::{PlaneGrid, PlaneGridConfig};
+use super::grid::{Inserted, PlaneGrid, PlaneGridConfig};
 use super::polygon::plane_cube_polygon;
+use super::runs::depth_runs;
+use super::stats::VoxelStats;
 use super::{is_planar, DEFAULT_EPSILON};
 use crate::camera::{Intrinsics, Pose};
 use crate::error::{Error, Result};
@@ -145,8 +147,8 @@ pub struct PlanesMapper {
     epsilon: f64,
     intrinsics: Intrinsics,
     grid: PlaneGrid,
-    /// The current frame's world points (reused buffer).
-    points: Vec<Vec3>,
+    /// The current frame's runs of pixels (reused buffer).
+    runs: Vec<(IVec3, VoxelStats)>,
     /// Voxels changed since the last re-mesh.
     dirty: VoxelSet,
     /// Planar windows and their patches.
@@ -167,7 +169,7 @@ impl PlanesMapper {
             epsilon: config.epsilon,
             intrinsics,
             grid: PlaneGrid::new(config.grid)?,
-            points: Vec::new(),
+            runs: Vec::new(),
             dirty: VoxelSet::default(),
             patches: PatchCache::default(),
             frames: 0,
@@ -190,6 +192,11 @@ impl PlanesMapper {
     /// returns how many were added.
     pub fn insert_points(&mut self, points: &[Vec3]) -> usize {
         let inserted = self.grid.insert_points(points);
+        self.mark_changed(inserted)
+    }
+
+    /// Notes what an insertion changed; returns the points it added.
+    fn mark_changed(&mut self, inserted: Inserted) -> usize {
         self.dirty.extend(inserted.changed);
         self.assembled = false;
         inserted.points
@@ -300,11 +307,10 @@ impl Mapper for PlanesMapper {
             ));
         }
         let start = Instant::now();
-        let mut points = std::mem::take(&mut self.points);
-        frame_points(&frame.depth, k, pose, &mut points);
         let before = self.grid.occupied_count();
-        let added = self.insert_points(&points);
-        self.points = points;
+        depth_runs(&self.grid, &frame.depth, k, pose, &mut self.runs);
+        let inserted = self.grid.insert_stats(&self.runs);
+        let added = self.mark_changed(inserted);
         let inserted = start.elapsed();
         self.frames += 1;
         let due = self.remesh_every > 0 && self.frames.is_multiple_of(self.remesh_every);
@@ -361,7 +367,6 @@ impl Mapper for PlanesMapper {
 mod tests {
     use super::*;
     use crate::eval::distance::MeshDistance;
-    use crate::planes::VoxelStats;
     use crate::sim::{NoiseModel, PathSpec, Scene, SceneOptions, SimulatedSensor};
     use std::path::Path;
 

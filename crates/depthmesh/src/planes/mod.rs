@@ -22,6 +22,7 @@ pub mod eigen;
 pub mod grid;
 pub mod mapper;
 pub mod polygon;
+pub mod runs;
 pub mod stats;
 
 pub use eigen::{symmetric_eigen, SymmetricEigen};
