@@ -20,7 +20,7 @@ use std::path::PathBuf;
 use std::time::Instant;
 
 /// The table scene (built in, like the demo's).
-const TABLE_SCENE: &str = include_str!("../../../scenes/table.toml");
+pub const TABLE_SCENE: &str = include_str!("../../../scenes/table.toml");
 
 /// Benchmarks.
 #[derive(Subcommand, Debug)]

@@ -10,6 +10,7 @@ mod progress;
 mod reconstruct;
 mod simplify;
 mod simulate;
+mod study;
 mod views;
 
 use clap::{Parser, Subcommand};
@@ -37,6 +38,9 @@ enum Command {
     /// Measure speed on generated data (figures as JSON).
     #[command(subcommand)]
     Bench(bench::BenchCommand),
+    /// The voxel-planes paper's study: runtime against points and
+    /// cross-validation error against size, voxel planes vs TSDF + marching cubes.
+    Study(study::StudyArgs),
     /// Simplify a mesh file by quadric edge collapse.
     Simplify(simplify::SimplifyArgs),
     /// Write a mesh as game-engine assets: chunked GLB, OBJ or PLY.
@@ -50,6 +54,7 @@ fn main() -> ExitCode {
         Command::Demo(args) => demo::run(&args, cli.quiet),
         Command::Reconstruct(args) => reconstruct::run(&args, cli.quiet),
         Command::Bench(command) => bench::run(&command),
+        Command::Study(args) => study::run(&args, cli.quiet),
         Command::Simplify(args) => simplify::run(&args, cli.quiet),
         Command::Export(args) => export::run(&args, cli.quiet),
     };

@@ -385,6 +385,25 @@ impl PlaneGrid {
     pub fn neighbourhood(&self, corner: IVec3) -> VoxelStats {
         let mut acc = VoxelStats::EMPTY;
         // Fixed order, so a vertex's result is reproducible bit for bit.
+        let (cell, first) = self.split(corner - IVec3::ONE);
+        if self.split(corner).0 == cell {
+            // All eight in one cell (most windows): one lookup, then offsets.
+            let Some(&slot) = self.index.get(&cell) else {
+                return acc;
+            };
+            let (voxels, n) = (&self.cells[slot as usize], self.n as usize);
+            for dz in 0..2 {
+                for dy in 0..2 {
+                    for dx in 0..2 {
+                        let s = &voxels[first + dx + n * (dy + n * dz)];
+                        if s.count > 0 {
+                            acc.merge(s);
+                        }
+                    }
+                }
+            }
+            return acc;
+        }
         for dz in -1..=0 {
             for dy in -1..=0 {
                 for dx in -1..=0 {

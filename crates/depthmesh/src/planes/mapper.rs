@@ -17,7 +17,7 @@ use crate::raster::{Rasterizer, RenderTarget};
 use crate::tsdf::KeyHasher;
 use glam::{DVec3, IVec3, Vec3};
 use rayon::prelude::*;
-use std::collections::{HashMap, HashSet};
+use std::collections::HashMap;
 use std::hash::BuildHasherDefault;
 use std::time::Instant;
 
@@ -80,8 +80,6 @@ impl Patch {
     }
 }
 
-/// Voxel keys, hashed like block keys.
-type VoxelSet = HashSet<IVec3, BuildHasherDefault<KeyHasher>>;
 /// Grid vertex → the patch of its window, for planar windows only.
 type PatchCache = HashMap<IVec3, Patch, BuildHasherDefault<KeyHasher>>;
 
@@ -149,8 +147,11 @@ pub struct PlanesMapper {
     grid: PlaneGrid,
     /// The current frame's runs of pixels (reused buffer).
     runs: Vec<(IVec3, VoxelStats)>,
-    /// Voxels changed since the last re-mesh.
-    dirty: VoxelSet,
+    /// Voxels changed since the last re-mesh, possibly repeated (appending
+    /// is cheaper than a set insert; see [`PlanesMapper::mark_changed`]).
+    dirty: Vec<IVec3>,
+    /// Length of `dirty` after its last deduplication.
+    dirty_unique: usize,
     /// Planar windows and their patches.
     patches: PatchCache,
     frames: u32,
@@ -170,7 +171,8 @@ impl PlanesMapper {
             intrinsics,
             grid: PlaneGrid::new(config.grid)?,
             runs: Vec::new(),
-            dirty: VoxelSet::default(),
+            dirty: Vec::new(),
+            dirty_unique: 0,
             patches: PatchCache::default(),
             frames: 0,
             mesh: Mesh::default(),
@@ -198,6 +200,12 @@ impl PlanesMapper {
     /// Notes what an insertion changed; returns the points it added.
     fn mark_changed(&mut self, inserted: Inserted) -> usize {
         self.dirty.extend(inserted.changed);
+        // Frames revisit the same voxels: deduplicate whenever the list has
+        // doubled, which bounds it by twice the distinct voxels.
+        if self.dirty.len() > 2 * self.dirty_unique.max(1 << 16) {
+            sort_dedup(&mut self.dirty);
+            self.dirty_unique = self.dirty.len();
+        }
         self.assembled = false;
         inserted.points
     }
@@ -205,9 +213,10 @@ impl PlanesMapper {
     /// Re-meshes every window that touches a voxel changed since the last
     /// re-mesh; returns how many windows were evaluated.
     pub fn remesh(&mut self) -> usize {
-        let mut corners: Vec<IVec3> = self.dirty.drain().flat_map(window_corners).collect();
-        corners.par_sort_unstable_by_key(|c| (c.x, c.y, c.z));
-        corners.dedup();
+        sort_dedup(&mut self.dirty);
+        let mut corners: Vec<IVec3> = self.dirty.drain(..).flat_map(window_corners).collect();
+        self.dirty_unique = 0;
+        sort_dedup(&mut corners);
         let (grid, epsilon) = (&self.grid, self.epsilon);
         let updated: Vec<(IVec3, Option<Patch>)> = corners
             .par_iter()
@@ -243,8 +252,7 @@ impl PlanesMapper {
             .occupied_voxels()
             .flat_map(|(v, _)| window_corners(v))
             .collect();
-        corners.par_sort_unstable_by_key(|c| (c.x, c.y, c.z));
-        corners.dedup();
+        sort_dedup(&mut corners);
         let patches: Vec<Patch> = corners
             .par_iter()
             .filter_map(|&c| window_patch(&self.grid, c, self.epsilon))
@@ -256,12 +264,18 @@ impl PlanesMapper {
     fn current_mesh(&self) -> Mesh {
         if self.dirty.is_empty() {
             let mut keys: Vec<&IVec3> = self.patches.keys().collect();
-            keys.sort_unstable_by_key(|c| (c.x, c.y, c.z));
+            keys.sort_unstable_by_key(|c| (c.z, c.y, c.x));
             assemble(keys.into_iter().map(|k| &self.patches[k]))
         } else {
             self.extract_mesh()
         }
     }
+}
+
+/// Sorts keys (z, then y, then x) and drops repeats.
+fn sort_dedup(keys: &mut Vec<IVec3>) {
+    keys.par_sort_unstable_by_key(|c| (c.z, c.y, c.x));
+    keys.dedup();
 }
 
 /// The eight grid vertices whose windows contain voxel `v`.
