@@ -343,7 +343,7 @@ fn runtime_plot(source: &str, outcomes: &[&Outcome]) -> LinePlot {
     let series = outcomes
         .iter()
         .map(|o| Series {
-            name: format!("{} {} cm", o.method.name(), o.voxel * 100.0),
+            name: format!("{} {} cm", o.method.name(), centimetres(o.voxel)),
             colour: colour(
                 o.method,
                 voxels.iter().position(|&v| v == o.voxel).unwrap_or(0),
@@ -377,7 +377,7 @@ fn error_plot(source: &str, outcomes: &[&Outcome]) -> LinePlot {
                 .filter(|o| o.method == method)
                 .map(|o| {
                     (
-                        (o.representation_bytes.max(1) as f64).log10(),
+                        (o.representation_bytes.max(1) as f64 / 1e3).log10(),
                         o.mean_error * 100.0,
                     )
                 })
@@ -387,7 +387,7 @@ fn error_plot(source: &str, outcomes: &[&Outcome]) -> LinePlot {
         .collect();
     LinePlot {
         title: format!("Cross-validation error: {source}"),
-        x_label: "representation size, log10 bytes".into(),
+        x_label: "representation size, log10 kB".into(),
         y_label: "mean distance of held-out points (cm)".into(),
         series,
     }
@@ -410,6 +410,11 @@ fn write_png(
     let png = canvas.encode_png();
     write_atomic(&dir.join(file), |w| w.write_all(&png))?;
     Ok(())
+}
+
+/// A voxel size in centimetres as people write it (7.5, not 7.5000005).
+fn centimetres(voxel: f32) -> f64 {
+    (f64::from(voxel) * 1000.0).round() / 10.0
 }
 
 /// Seconds of the whole run (the last checkpoint) and points fused.
@@ -502,7 +507,7 @@ fn table_markdown(sources: &[Source], outcomes: &[Outcome]) -> String {
             let _ = writeln!(
                 s,
                 "| {} cm | {} | {:.3} | {:.1} | {} | {:.2} MB | {} | {:.2} cm | {:.2} cm | {:.1} % | {} |",
-                o.voxel * 100.0,
+                centimetres(o.voxel),
                 o.method.name(),
                 seconds,
                 points as f64 / seconds.max(1e-12) / 1e6,

@@ -13,7 +13,7 @@ use crate::image::{DepthImage, Frame};
 use crate::map::{IntegrateReport, MapStats, Mapper};
 use crate::mesh::Mesh;
 use crate::palette::normal_color;
-use crate::raster::{Rasterizer, RenderTarget};
+use crate::raster::render_mesh_depth;
 use crate::tsdf::KeyHasher;
 use glam::{DVec3, IVec3, Vec3};
 use rayon::prelude::*;
@@ -345,17 +345,7 @@ impl Mapper for PlanesMapper {
     }
 
     fn render_depth(&self, intrinsics: &Intrinsics, pose: &Pose) -> DepthImage {
-        let mesh = self.current_mesh();
-        let mut target = RenderTarget::default();
-        Rasterizer::new().render(
-            &mesh.positions,
-            &mesh.triangles,
-            intrinsics,
-            pose,
-            0.01,
-            &mut target,
-        );
-        target.depth
+        render_mesh_depth(&self.current_mesh(), intrinsics, pose)
     }
 
     fn mesh(&mut self) -> &Mesh {

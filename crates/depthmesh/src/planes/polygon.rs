@@ -2,24 +2,8 @@
 //! cube (the paper's eq. 4 on the cube's 12 edges), a convex polygon of 3–6
 //! vertices ordered around the normal and triangulated as a fan.
 
+use crate::tsdf::cases::{CORNERS, EDGES};
 use glam::DVec3;
-
-/// The cube's 12 edges as pairs of corner numbers; corner `i` is offset by
-/// bit 0 → x, bit 1 → y, bit 2 → z.
-const EDGES: [(usize, usize); 12] = [
-    (0, 1),
-    (2, 3),
-    (4, 5),
-    (6, 7),
-    (0, 2),
-    (1, 3),
-    (4, 6),
-    (5, 7),
-    (0, 4),
-    (1, 5),
-    (2, 6),
-    (3, 7),
-];
 
 /// Intersections closer than this fraction of the cube's edge are one vertex:
 /// a plane through a cube corner crosses three edges there.
@@ -50,24 +34,23 @@ impl Polygon {
 /// `[min, min + size]³`: `None` when the plane misses the cube or only
 /// touches it in a point or along an edge (fewer than three vertices).
 pub fn plane_cube_polygon(point: DVec3, normal: DVec3, min: DVec3, size: f64) -> Option<Polygon> {
-    let corner = |i: usize| {
-        min + DVec3::new(
-            (i & 1) as f64 * size,
-            ((i >> 1) & 1) as f64 * size,
-            ((i >> 2) & 1) as f64 * size,
-        )
+    // The cube's corners and edges numbered as in marching cubes.
+    let corner = |i: u8| {
+        let [x, y, z] = CORNERS[usize::from(i)].map(f64::from);
+        min + DVec3::new(x, y, z) * size
     };
     // Signed distances of the corners; a corner exactly on the plane counts
     // as above, so each crossing is found once per edge.
-    let d: [f64; 8] = std::array::from_fn(|i| normal.dot(corner(i) - point));
+    let d: [f64; 8] = std::array::from_fn(|i| normal.dot(corner(i as u8) - point));
     let mut found = [DVec3::ZERO; 12];
     let mut n = 0;
     for (a, b) in EDGES {
-        if (d[a] < 0.0) == (d[b] < 0.0) {
+        let (da, db) = (d[usize::from(a)], d[usize::from(b)]);
+        if (da < 0.0) == (db < 0.0) {
             continue;
         }
         // Eq. (4): the fraction of the way from P1 to P2 where n̂·(U − P0) = 0.
-        let t = d[a] / (d[a] - d[b]);
+        let t = da / (da - db);
         let p = corner(a) + (corner(b) - corner(a)) * t;
         if found[..n]
             .iter()
