@@ -309,22 +309,28 @@ impl PlaneGrid {
             *i += 1;
         }
 
-        // Each touched cell is one job with a distinct `&mut`.
+        // Each touched cell is one job with a distinct `&mut` to its voxels
+        // and to its entries.
         let n = self.n;
-        let jobs: Vec<(IVec3, &mut [VoxelStats], &[(u32, u32)])> = self
-            .cells
-            .iter_mut()
-            .zip(&self.keys)
-            .enumerate()
-            .filter(|(s, _)| starts[s + 1] > starts[*s])
-            .map(|(s, (cell, &key))| (key, &mut **cell, &sorted[starts[s]..starts[s + 1]]))
-            .collect();
+        let mut rest = &mut sorted[..];
+        let mut jobs: Vec<(IVec3, &mut [VoxelStats], &mut [(u32, u32)])> = Vec::new();
+        for (s, (cell, &key)) in self.cells.iter_mut().zip(&self.keys).enumerate() {
+            let (mine, tail) = rest.split_at_mut(starts[s + 1] - starts[s]);
+            rest = tail;
+            if !mine.is_empty() {
+                jobs.push((key, &mut **cell, mine));
+            }
+        }
         let per_cell: Vec<(usize, Vec<IVec3>)> = jobs
             .into_par_iter()
             .map(|(key, cell, entries)| {
+                // In voxel order, so the cell's memory is walked once; the
+                // sort is stable, so each voxel still gets its items in
+                // input order.
+                entries.sort_by_key(|&(local, _)| local);
                 let mut touched = vec![0u64; cell.len().div_ceil(64)];
                 let mut new = 0;
-                for &(local, item) in entries {
+                for &mut (local, item) in entries {
                     let stats = &mut cell[local as usize];
                     new += usize::from(stats.count == 0);
                     add(stats, &items[item as usize]);

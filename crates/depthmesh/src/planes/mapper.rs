@@ -4,7 +4,7 @@
 
 use super::grid::{Inserted, PlaneGrid, PlaneGridConfig};
 use super::polygon::plane_cube_polygon;
-use super::runs::depth_runs;
+use super::runs::{depth_runs, RowRays};
 use super::stats::VoxelStats;
 use super::{is_planar, DEFAULT_EPSILON};
 use crate::camera::{Intrinsics, Pose};
@@ -126,11 +126,10 @@ pub fn frame_points(depth: &DepthImage, intrinsics: &Intrinsics, pose: &Pose, ou
             .par_chunks(width)
             .enumerate()
             .flat_map_iter(|(v, row)| {
-                row.iter().enumerate().filter_map(move |(u, &z)| {
-                    (z > 0.0 && z.is_finite()).then(|| {
-                        pose.transform_point(intrinsics.back_project(u as f32, v as f32, z))
-                    })
-                })
+                let ray = RowRays::new(intrinsics, pose, v as f32);
+                row.iter()
+                    .enumerate()
+                    .filter_map(move |(u, &z)| (z > 0.0 && z.is_finite()).then(|| ray.point(u, z)))
             }),
     );
 }
