@@ -3,8 +3,8 @@
 
 use crate::export::RunExportArgs;
 use crate::output::{FrameStats, RunOutput};
-use crate::progress;
 use crate::planes::{self, PlanesArgs};
+use crate::progress;
 use crate::views::{self, Dashboard, MapperView};
 use anyhow::{bail, Context, Result};
 use clap::{Args, ValueEnum};

@@ -56,7 +56,11 @@ pub struct StudyArgs {
     #[arg(long, default_value_t = 30)]
     pub sim_iterations: u32,
     /// Voxel sizes in metres, used by both methods.
-    #[arg(long, value_delimiter = ',', default_value = "0.02,0.03,0.05,0.075,0.1")]
+    #[arg(
+        long,
+        value_delimiter = ',',
+        default_value = "0.02,0.03,0.05,0.075,0.1"
+    )]
     pub voxels: Vec<f32>,
     /// Seed of the held-out pixel choice and of the simulated noise.
     #[arg(long, default_value_t = 0)]
@@ -138,8 +142,20 @@ pub fn run(args: &StudyArgs, quiet: bool) -> Result<()> {
     bar.finish_and_clear();
 
     let names: Vec<&str> = sources.iter().map(|s| s.name.as_str()).collect();
-    write_png(&args.out, "runtime_vs_points.png", &names, &outcomes, runtime_plot)?;
-    write_png(&args.out, "error_vs_size.png", &names, &outcomes, error_plot)?;
+    write_png(
+        &args.out,
+        "runtime_vs_points.png",
+        &names,
+        &outcomes,
+        runtime_plot,
+    )?;
+    write_png(
+        &args.out,
+        "error_vs_size.png",
+        &names,
+        &outcomes,
+        error_plot,
+    )?;
     let csv = table_csv(&outcomes);
     write_atomic(&args.out.join("study.csv"), |w| w.write_all(csv.as_bytes()))?;
     let md = table_markdown(&sources, &outcomes);
@@ -204,7 +220,8 @@ fn hold_out(name: String, k: Intrinsics, mut frames: Vec<Frame>, seed: u64) -> S
     let mut fused = 0;
     for (i, frame) in frames.iter_mut().enumerate() {
         let pose = frame.pose.expect("study frames have poses");
-        let mut rng = SmallRng::seed_from_u64(seed ^ (i as u64).wrapping_mul(0x9e37_79b9_7f4a_7c15));
+        let mut rng =
+            SmallRng::seed_from_u64(seed ^ (i as u64).wrapping_mul(0x9e37_79b9_7f4a_7c15));
         let width = frame.depth.width as usize;
         for (p, z) in frame.depth.data.iter_mut().enumerate() {
             if *z <= 0.0 {
@@ -250,9 +267,12 @@ impl StudyMap {
                 };
                 StudyMap::Planes(Box::new(PlanesMapper::new(config, k)?))
             }
-            Method::Tsdf => {
-                StudyMap::Tsdf(Box::new(TsdfMapper::new(TsdfConfig::new(voxel), k, 0.1, 4.0)?))
-            }
+            Method::Tsdf => StudyMap::Tsdf(Box::new(TsdfMapper::new(
+                TsdfConfig::new(voxel),
+                k,
+                0.1,
+                4.0,
+            )?)),
         })
     }
 
@@ -284,10 +304,7 @@ fn epsilon_for(voxel: f32) -> f64 {
 fn measure(source: &Source, method: Method, voxel: f32) -> Result<Outcome> {
     let mut map = StudyMap::new(method, voxel, source.intrinsics)?;
     let n = source.frames.len();
-    let mut checkpoints: Vec<usize> = [n / 8, n / 4, n / 2, n]
-        .iter()
-        .map(|&c| c.max(1))
-        .collect();
+    let mut checkpoints: Vec<usize> = [n / 8, n / 4, n / 2, n].iter().map(|&c| c.max(1)).collect();
     checkpoints.dedup();
     let (mut seconds, mut runtime) = (0.0, Vec::new());
     for (i, frame) in source.frames.iter().enumerate() {
@@ -319,7 +336,9 @@ fn measure(source: &Source, method: Method, voxel: f32) -> Result<Outcome> {
         representation_bytes: map.representation_bytes(),
         triangles: mesh.triangle_count(),
         mean_error: distances.iter().map(|&d| f64::from(d)).sum::<f64>() / count,
-        median_error: distances.get(distances.len() / 2).map_or(0.0, |&d| f64::from(d)),
+        median_error: distances
+            .get(distances.len() / 2)
+            .map_or(0.0, |&d| f64::from(d)),
         within_1cm: distances.iter().filter(|&&d| d <= 0.01).count() as f64 / count,
     })
 }
@@ -327,7 +346,11 @@ fn measure(source: &Source, method: Method, voxel: f32) -> Result<Outcome> {
 /// Colour of a series: blues for planes, reds for the TSDF, darker for
 /// larger voxels.
 fn colour(method: Method, rank: usize, of: usize) -> Rgb {
-    let t = if of > 1 { rank as f32 / (of - 1) as f32 } else { 0.0 };
+    let t = if of > 1 {
+        rank as f32 / (of - 1) as f32
+    } else {
+        0.0
+    };
     let shade = |light: f32, dark: f32| (light + (dark - light) * t) as u8;
     match method {
         Method::Planes => [shade(110.0, 10.0), shade(170.0, 40.0), shade(255.0, 140.0)],
@@ -471,7 +494,10 @@ fn tsdf_error_at(tsdf: &[&Outcome], bytes: usize) -> Option<f64> {
 fn table_markdown(sources: &[Source], outcomes: &[Outcome]) -> String {
     let mut s = String::new();
     for source in sources {
-        let mine: Vec<&Outcome> = outcomes.iter().filter(|o| o.source == source.name).collect();
+        let mine: Vec<&Outcome> = outcomes
+            .iter()
+            .filter(|o| o.source == source.name)
+            .collect();
         let tsdf: Vec<&Outcome> = mine
             .iter()
             .copied()
@@ -501,7 +527,9 @@ fn table_markdown(sources: &[Source], outcomes: &[Outcome]) -> String {
             };
             let same_size = match o.method {
                 Method::Planes => tsdf_error_at(&tsdf, o.representation_bytes)
-                    .map_or("outside TSDF sizes".into(), |e| format!("{:.2} cm", e * 100.0)),
+                    .map_or("outside TSDF sizes".into(), |e| {
+                        format!("{:.2} cm", e * 100.0)
+                    }),
                 Method::Tsdf => String::new(),
             };
             let _ = writeln!(

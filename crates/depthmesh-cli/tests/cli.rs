@@ -341,12 +341,19 @@ fn voxel_planes_follow_the_run_contract() {
     assert!(voxels > 1000);
     assert!(summary["planar_voxels"].as_u64().unwrap() > voxels / 2);
     // 10 floats of 4 bytes per voxel, as the paper counts.
-    assert_eq!(summary["representation_bytes"].as_u64().unwrap(), voxels * 40);
+    assert_eq!(
+        summary["representation_bytes"].as_u64().unwrap(),
+        voxels * 40
+    );
     assert!(summary["surface_within_2cm"].as_f64().unwrap() > 0.95);
     assert!(sim.join("view.png").is_file() && sim.join("scene.ply").is_file());
     let mesh = depthmesh::mesh::io::read_mesh(&sim.join("mesh.ply")).unwrap();
     assert!(mesh.triangle_count() > 1000);
-    assert_eq!(mesh.colors.len(), mesh.positions.len(), "coloured by normal");
+    assert_eq!(
+        mesh.colors.len(),
+        mesh.positions.len(),
+        "coloured by normal"
+    );
 
     simulated_frames_folder(&dir);
     let real = dir.join("real");
@@ -366,17 +373,28 @@ fn voxel_planes_follow_the_run_contract() {
     common::ok(&result);
     let summary: serde_json::Value =
         serde_json::from_str(&std::fs::read_to_string(real.join("summary.json")).unwrap()).unwrap();
-    for key in ["voxels", "planar_voxels", "representation_bytes", "mesh_seconds"] {
+    for key in [
+        "voxels",
+        "planar_voxels",
+        "representation_bytes",
+        "mesh_seconds",
+    ] {
         assert!(summary.get(key).is_some(), "summary lacks {key}");
     }
     assert!(summary["triangles"].as_u64().unwrap() > 100);
     let stats = std::fs::read_to_string(real.join("stats.csv")).unwrap();
     let header: Vec<&str> = stats.lines().next().unwrap().split(',').collect();
-    let column = header.iter().position(|h| *h == "remeshed_windows").unwrap();
-    assert!(stats
-        .lines()
-        .skip(1)
-        .all(|l| l.split(',').nth(column).unwrap().parse::<f64>().unwrap() > 0.0));
+    let column = header
+        .iter()
+        .position(|h| *h == "remeshed_windows")
+        .unwrap();
+    assert!(stats.lines().skip(1).all(|l| l
+        .split(',')
+        .nth(column)
+        .unwrap()
+        .parse::<f64>()
+        .unwrap()
+        > 0.0));
     std::fs::remove_dir_all(dir).unwrap();
 }
 
@@ -387,10 +405,22 @@ fn bad_voxel_plane_flags_are_rejected() {
         args.extend_from_slice(extra);
         args
     };
-    rejects("plane-cell", &planes(&["--plane-cell", "0.12"]), &["cell size"]);
-    rejects("plane-voxel", &planes(&["--plane-voxel", "0"]), &["voxel size"]);
+    rejects(
+        "plane-cell",
+        &planes(&["--plane-cell", "0.12"]),
+        &["cell size"],
+    );
+    rejects(
+        "plane-voxel",
+        &planes(&["--plane-voxel", "0"]),
+        &["voxel size"],
+    );
     rejects("epsilon", &planes(&["--epsilon=-1"]), &["epsilon"]);
-    rejects("planes-dashboard", &planes(&["--dashboard"]), &["--dashboard"]);
+    rejects(
+        "planes-dashboard",
+        &planes(&["--dashboard"]),
+        &["--dashboard"],
+    );
 }
 
 #[test]
@@ -408,7 +438,12 @@ fn the_study_writes_its_plots_and_table() {
         o,
     ]);
     common::ok(&result);
-    for f in ["runtime_vs_points.png", "error_vs_size.png", "study.csv", "study.md"] {
+    for f in [
+        "runtime_vs_points.png",
+        "error_vs_size.png",
+        "study.csv",
+        "study.md",
+    ] {
         assert!(out.join(f).is_file(), "{f} missing");
     }
     let csv = std::fs::read_to_string(out.join("study.csv")).unwrap();

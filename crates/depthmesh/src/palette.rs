@@ -97,13 +97,20 @@ mod tests {
         assert_eq!(normal_color(pole), [128, 128, 255]);
         assert_eq!(normal_color(Vec3::new(1.0, -1.0, 0.0)), [128, 128, 0]);
         // The axes, as the faces of a room: three different colours.
-        let (x, y, z) = (normal_color(Vec3::X), normal_color(Vec3::Y), normal_color(Vec3::Z));
+        let (x, y, z) = (
+            normal_color(Vec3::X),
+            normal_color(Vec3::Y),
+            normal_color(Vec3::Z),
+        );
         assert!(x != y && y != z && x != z, "{x:?} {y:?} {z:?}");
         // Just on either side of the seam: nearly the same colour.
         let seam = Vec3::new(1.0, -1.0, 0.0).normalize();
         let a = normal_color(seam + pole * 0.01);
         let b = normal_color(seam - pole * 0.01);
-        assert!((0..3).all(|i| (i32::from(a[i]) - i32::from(b[i])).abs() <= 4), "{a:?} {b:?}");
+        assert!(
+            (0..3).all(|i| (i32::from(a[i]) - i32::from(b[i])).abs() <= 4),
+            "{a:?} {b:?}"
+        );
         assert_eq!(normal_color(Vec3::ZERO), [128; 3]);
     }
 }

@@ -320,7 +320,6 @@ impl Mapper for MabdiMapper {
     }
 }
 
-
 /// Meshes the novel pixels of a frame onto the end of `mesh`, in the colour
 /// of `iteration`; returns how many triangles were added.
 fn append_novel(

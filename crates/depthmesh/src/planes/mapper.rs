@@ -55,7 +55,10 @@ impl PlanesConfig {
         if !(self.epsilon.is_finite() && self.epsilon > 0.0) {
             return Err(Error::parameter(
                 "epsilon",
-                format!("must be a positive distance in metres, got {}", self.epsilon),
+                format!(
+                    "must be a positive distance in metres, got {}",
+                    self.epsilon
+                ),
             ));
         }
         Ok(())
@@ -383,7 +386,9 @@ mod tests {
         let k = (half / step).round() as i32;
         (-k..=k)
             .flat_map(|i| (-k..=k).map(move |j| (i, j)))
-            .map(|(i, j)| (origin + u * (f64::from(i) * step) + w * (f64::from(j) * step)).as_vec3())
+            .map(|(i, j)| {
+                (origin + u * (f64::from(i) * step) + w * (f64::from(j) * step)).as_vec3()
+            })
             .collect()
     }
 
@@ -436,7 +441,10 @@ mod tests {
         for i in 0..8 {
             let v = corner - IVec3::new(i & 1, (i >> 1) & 1, (i >> 2) & 1);
             if let Some(s) = m.grid().voxel(v) {
-                assert!(!is_planar(s.eigen().values, DEFAULT_EPSILON), "voxel {v} alone is planar");
+                assert!(
+                    !is_planar(s.eigen().values, DEFAULT_EPSILON),
+                    "voxel {v} alone is planar"
+                );
             }
         }
         let all = VoxelStats::from_points(&pts.iter().map(|p| p.as_dvec3()).collect::<Vec<_>>());

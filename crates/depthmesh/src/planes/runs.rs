@@ -155,7 +155,11 @@ mod tests {
                 1.5 + 0.004 * u + 0.002 * v + 0.01 * (u * 0.3).sin()
             };
         }
-        let pose = Pose::look_at(Vec3::new(101.0, -40.0, 7.0), Vec3::new(103.0, -40.5, 8.0), Vec3::Y);
+        let pose = Pose::look_at(
+            Vec3::new(101.0, -40.0, 7.0),
+            Vec3::new(103.0, -40.5, 8.0),
+            Vec3::Y,
+        );
         (depth, k, pose)
     }
 
