@@ -94,6 +94,10 @@ struct Binned {
     item: u32,
 }
 
+/// One cell's share of an insertion: its key, its voxels and its
+/// (voxel index, item index) entries.
+type CellJob<'a> = (IVec3, &'a mut [VoxelStats], &'a mut [(u32, u32)]);
+
 /// Slot of an item whose cell is not allocated yet.
 const NEW_CELL: u32 = u32::MAX;
 /// Slot of an item that has no voxel (non-finite or out of range).
@@ -123,8 +127,8 @@ fn voxel_at(scale: f64, p: Vec3) -> Option<IVec3> {
         // f64 so a point a rounding error inside a voxel border is binned
         // the same way in every call.
         let x = f64::from(c) * scale;
-        // Also false for NaN.
-        if !(x.abs() < limit) {
+        // `!(x.abs() < limit)` in effect: NaN fails too.
+        if x.abs() >= limit || x.is_nan() {
             return None;
         }
         // Floor by truncation: `f64::floor` is a libm call without SSE4.1,
@@ -313,7 +317,7 @@ impl PlaneGrid {
         // and to its entries.
         let n = self.n;
         let mut rest = &mut sorted[..];
-        let mut jobs: Vec<(IVec3, &mut [VoxelStats], &mut [(u32, u32)])> = Vec::new();
+        let mut jobs: Vec<CellJob> = Vec::new();
         for (s, (cell, &key)) in self.cells.iter_mut().zip(&self.keys).enumerate() {
             let (mine, tail) = rest.split_at_mut(starts[s + 1] - starts[s]);
             rest = tail;

@@ -132,7 +132,8 @@ pub fn frame_points(depth: &DepthImage, intrinsics: &Intrinsics, pose: &Pose, ou
                 let ray = RowRays::new(intrinsics, pose, v as f32);
                 row.iter()
                     .enumerate()
-                    .filter_map(move |(u, &z)| (z > 0.0 && z.is_finite()).then(|| ray.point(u, z)))
+                    .filter(|&(_, &z)| z > 0.0 && z.is_finite())
+                    .map(move |(u, &z)| ray.point(u, z))
             }),
     );
 }

@@ -149,7 +149,7 @@ mod tests {
         let mut depth = DepthImage::new(k.width, k.height);
         for (i, d) in depth.data.iter_mut().enumerate() {
             let (u, v) = ((i % 160) as f32, (i / 160) as f32);
-            *d = if (u + v) as u32 % 17 == 0 {
+            *d = if ((u + v) as u32).is_multiple_of(17) {
                 0.0
             } else {
                 1.5 + 0.004 * u + 0.002 * v + 0.01 * (u * 0.3).sin()
