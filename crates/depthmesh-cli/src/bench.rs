@@ -1,12 +1,17 @@
 //! `depthmesh bench`: speed figures measured on generated data, printed as
 //! JSON so scripts can set them beside a reference implementation's.
 
-use anyhow::{bail, Result};
+use crate::planes::PlanesArgs;
+use anyhow::{bail, Context, Result};
 use clap::{Args, Subcommand};
 use depthmesh::atomic::write_atomic;
+use depthmesh::dataset::{Dataset, DatasetOptions, FrameRange};
 use depthmesh::mabdi::{MabdiConfig, MabdiMapper, NaiveMapper};
 use depthmesh::map::Mapper;
 use depthmesh::mesh::ply::{write_ply, PlyFormat};
+use depthmesh::planes::mapper::frame_points;
+use depthmesh::planes::runs::depth_runs;
+use depthmesh::planes::PlaneGrid;
 use depthmesh::sim::{NoiseModel, PathSpec, Scene, SceneOptions, SimulatedSensor};
 use depthmesh::trajectory::format_tum;
 use serde_json::json;
@@ -15,7 +20,7 @@ use std::path::PathBuf;
 use std::time::Instant;
 
 /// The table scene (built in, like the demo's).
-const TABLE_SCENE: &str = include_str!("../../../scenes/table.toml");
+pub const TABLE_SCENE: &str = include_str!("../../../scenes/table.toml");
 
 /// Benchmarks.
 #[derive(Subcommand, Debug)]
@@ -23,6 +28,25 @@ pub enum BenchCommand {
     /// Time full MABDI iterations (render D, render E, classify, mesh, append)
     /// against a global mesh of at least `--min-triangles`.
     Mabdi(MabdiBenchArgs),
+    /// Points per second folded into the voxel-planes statistics on
+    /// recorded depth frames: from the depth images as the mapper does it,
+    /// and from ready world points (`insert_points`).
+    Planes(PlanesBenchArgs),
+}
+
+/// Flags of `depthmesh bench planes`.
+#[derive(Args, Debug)]
+pub struct PlanesBenchArgs {
+    /// A 7-Scenes frames folder or TUM RGB-D folder with poses.
+    pub dataset: PathBuf,
+    /// Frames to read from the start (their points are inserted in one timed pass).
+    #[arg(long, default_value_t = 100)]
+    pub frames: usize,
+    /// Timed passes, each into a fresh map; the median is reported.
+    #[arg(long, default_value_t = 5)]
+    pub repeats: u32,
+    #[command(flatten)]
+    pub planes: PlanesArgs,
 }
 
 /// Flags of `depthmesh bench mabdi`.
@@ -44,12 +68,87 @@ pub struct MabdiBenchArgs {
 pub fn run(command: &BenchCommand) -> Result<()> {
     match command {
         BenchCommand::Mabdi(args) => mabdi(args),
+        BenchCommand::Planes(args) => planes(args),
     }
 }
 
 fn median(mut v: Vec<f64>) -> f64 {
     v.sort_by(f64::total_cmp);
     v[v.len() / 2]
+}
+
+fn planes(args: &PlanesBenchArgs) -> Result<()> {
+    if args.frames == 0 || args.repeats == 0 {
+        bail!("--frames and --repeats must be at least 1");
+    }
+    let options = DatasetOptions {
+        frames: Some(FrameRange {
+            start: 0,
+            end: Some(args.frames),
+        }),
+        ..DatasetOptions::default()
+    };
+    let dataset = Dataset::open(&args.dataset, &options)?;
+    let k = dataset.intrinsics();
+    // Frames are read (PNG decoding) before timing.
+    let mut frames = Vec::with_capacity(dataset.len());
+    for frame in dataset.frames() {
+        let frame = frame?;
+        let pose = frame
+            .pose
+            .with_context(|| format!("frame {} has no pose", frame.index))?;
+        frames.push((frame.depth, pose));
+    }
+    let config = args.planes.config().grid;
+    // The mapper's path: pixels → world points → runs → statistics.
+    let mut runs = Vec::new();
+    let (mut depth_seconds, mut points, mut voxels) = (Vec::new(), 0, 0);
+    for _ in 0..args.repeats {
+        let mut grid = PlaneGrid::new(config)?;
+        let start = Instant::now();
+        points = 0;
+        for (depth, pose) in &frames {
+            depth_runs(&grid, depth, &k, pose, &mut runs);
+            points += grid.insert_stats(&runs).points;
+        }
+        depth_seconds.push(start.elapsed().as_secs_f64());
+        voxels = grid.occupied_count();
+    }
+    // A point cloud's path: world points (made before timing) → statistics.
+    let clouds: Vec<Vec<_>> = frames
+        .iter()
+        .map(|(depth, pose)| {
+            let mut cloud = Vec::new();
+            frame_points(depth, &k, pose, &mut cloud);
+            cloud
+        })
+        .collect();
+    let mut cloud_seconds = Vec::new();
+    for _ in 0..args.repeats {
+        let mut grid = PlaneGrid::new(config)?;
+        let start = Instant::now();
+        for cloud in &clouds {
+            grid.insert_points(cloud);
+        }
+        cloud_seconds.push(start.elapsed().as_secs_f64());
+    }
+    let (depth_s, cloud_s) = (median(depth_seconds), median(cloud_seconds));
+    println!(
+        "{}",
+        json!({
+            "bench": "planes_insert",
+            "frames": frames.len(),
+            "points": points,
+            "voxels": voxels,
+            "voxel": args.planes.plane_voxel,
+            "threads": rayon::current_num_threads(),
+            "depth_median_seconds": depth_s,
+            "points_per_second": points as f64 / depth_s,
+            "cloud_median_seconds": cloud_s,
+            "cloud_points_per_second": points as f64 / cloud_s,
+        })
+    );
+    Ok(())
 }
 
 fn mabdi(args: &MabdiBenchArgs) -> Result<()> {

@@ -1,6 +1,7 @@
 //! `depthmesh demo`: the thesis's experiments (Table 4.1) on built-in scenes,
 //! with no external data needed for the first one.
 
+use crate::planes::PlanesArgs;
 use crate::simulate::{self, MapKind, SimulateArgs};
 use anyhow::Result;
 use clap::Args;
@@ -93,7 +94,9 @@ pub fn run(args: &DemoArgs, quiet: bool) -> Result<()> {
             voxel: 0.01,
             keep_removed: false,
             track: false,
+            planes: PlanesArgs::default(),
             dashboard: true,
+            view: false,
             out: args.out.join(e.name),
             export: Default::default(),
             bounded: Default::default(),

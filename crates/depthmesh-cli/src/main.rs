@@ -7,10 +7,12 @@ mod draw;
 mod eval;
 mod export;
 mod output;
+mod planes;
 mod progress;
 mod reconstruct;
 mod simplify;
 mod simulate;
+mod study;
 mod tracking;
 mod views;
 
@@ -42,6 +44,9 @@ enum Command {
     /// Measure accuracy against a reference (trajectories).
     #[command(subcommand)]
     Eval(eval::EvalCommand),
+    /// The voxel-planes paper's study: runtime against points and
+    /// cross-validation error against size, voxel planes vs TSDF + marching cubes.
+    Study(study::StudyArgs),
     /// Simplify a mesh file by quadric edge collapse.
     Simplify(simplify::SimplifyArgs),
     /// Write a mesh as game-engine assets: chunked GLB, OBJ or PLY.
@@ -56,6 +61,7 @@ fn main() -> ExitCode {
         Command::Reconstruct(args) => reconstruct::run(&args, cli.quiet),
         Command::Bench(command) => bench::run(&command),
         Command::Eval(command) => eval::run(&command),
+        Command::Study(args) => study::run(&args, cli.quiet),
         Command::Simplify(args) => simplify::run(&args, cli.quiet),
         Command::Export(args) => export::run(&args, cli.quiet),
     };

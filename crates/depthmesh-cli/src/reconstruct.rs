@@ -6,6 +6,7 @@ use crate::draw::canvas::Canvas;
 use crate::draw::colormap::normal_shade;
 use crate::export::RunExportArgs;
 use crate::output::{FrameStats, RunOutput};
+use crate::planes::{self, PlanesArgs};
 use crate::progress;
 use crate::tracking::PoseSource;
 use anyhow::{bail, Context, Result};
@@ -14,6 +15,7 @@ use depthmesh::atomic::write_atomic;
 use depthmesh::dataset::{Dataset, DatasetOptions, FrameRange, IntrinsicsSpec};
 use depthmesh::mabdi::{MabdiConfig, MabdiMapper};
 use depthmesh::map::{IntegrateReport, Mapper};
+use depthmesh::planes::PlanesMapper;
 use depthmesh::tsdf::mapper::TsdfMapper;
 use depthmesh::tsdf::raycast::RaycastImage;
 use depthmesh::tsdf::{TsdfConfig, BLOCK_VOXELS};
@@ -31,6 +33,8 @@ pub enum ReconstructMap {
     Tsdf,
     /// MABDI mesh addition.
     Mabdi,
+    /// Voxel planes: per-voxel statistics, a plane patch per planar 2×2×2 window.
+    Planes,
 }
 
 /// Flags of `depthmesh reconstruct`.
@@ -65,7 +69,9 @@ pub struct ReconstructArgs {
     /// Intrinsics fx,fy,cx,cy[,width,height] or a file (3×3 K, or "w h fx fy cx cy").
     #[arg(long)]
     pub intrinsics: Option<String>,
-    /// Re-mesh the changed blocks every N frames (tsdf; 0: once, at the end).
+    #[command(flatten)]
+    pub planes: PlanesArgs,
+    /// Re-mesh the changed blocks (tsdf) or windows (planes) every N frames (0: once, at the end).
     #[arg(long, default_value_t = 0)]
     pub remesh_every: u32,
     /// Write a shaded ray-cast "status image" of the map every N frames (tsdf).
@@ -136,12 +142,17 @@ pub fn run(args: &ReconstructArgs, quiet: bool) -> Result<()> {
         ReconstructMap::Mabdi => RealMap::Mabdi(Box::new(MabdiMapper::new(MabdiConfig::thesis(
             k, 0.8, 4.0,
         ))?)),
+        ReconstructMap::Planes => {
+            let mut mapper = args.planes.mapper(k)?;
+            mapper.remesh_every = args.remesh_every;
+            RealMap::Planes(Box::new(mapper))
+        }
     };
     let mut raycast = RaycastImage::default();
     let mut out = RunOutput::create(&args.out)?;
     let mut chunks = match &mut map {
         RealMap::Tsdf(t) => args.bounded.start(t, &out)?,
-        RealMap::Mabdi(_) => None,
+        RealMap::Mabdi(_) | RealMap::Planes(_) => None,
     };
     let bar = progress::bar(dataset.len() as u64, "reconstruct", quiet);
     let mut poses = PoseSource::new(args.track, k);
@@ -226,6 +237,13 @@ pub fn run(args: &ReconstructArgs, quiet: bool) -> Result<()> {
             let bytes = m.stats().bytes;
             (m.name(), bytes, m.mesh().clone())
         }
+        RealMap::Planes(p) => {
+            // The windows changed since the last re-mesh, then assembly.
+            planes::summarise(p, &mut summary);
+            summary.insert("mesh_seconds".into(), json!(start.elapsed().as_secs_f64()));
+            let bytes = p.stats().bytes;
+            (p.name(), bytes, p.mesh().clone())
+        }
     };
     match &chunks {
         Some(c) => c.finish(&out, name, &mesh, bytes, summary)?,
@@ -270,6 +288,7 @@ fn write_status_image(
 enum RealMap {
     Tsdf(Box<TsdfMapper>),
     Mabdi(Box<MabdiMapper>),
+    Planes(Box<PlanesMapper>),
 }
 
 impl RealMap {
@@ -277,6 +296,7 @@ impl RealMap {
         match self {
             RealMap::Tsdf(m) => m.as_mut(),
             RealMap::Mabdi(m) => m.as_mut(),
+            RealMap::Planes(m) => m.as_mut(),
         }
     }
 }

@@ -4,9 +4,10 @@
 use crate::bounded::ActiveRadiusArgs;
 use crate::export::RunExportArgs;
 use crate::output::{FrameStats, RunOutput};
+use crate::planes::{self, PlanesArgs};
 use crate::progress;
 use crate::tracking::PoseSource;
-use crate::views::{Dashboard, MapperView};
+use crate::views::{self, Dashboard, MapperView};
 use anyhow::{bail, Context, Result};
 use clap::{Args, ValueEnum};
 use depthmesh::atomic::write_atomic;
@@ -16,6 +17,7 @@ use depthmesh::mabdi::classify::Threshold;
 use depthmesh::mabdi::{MabdiConfig, MabdiMapper, NaiveMapper};
 use depthmesh::map::{IntegrateReport, Mapper};
 use depthmesh::mesh::ply::{write_ply, PlyFormat};
+use depthmesh::planes::PlanesMapper;
 use depthmesh::sim::{NoiseModel, PathSpec, Scene, SceneOptions, SimulatedSensor};
 use depthmesh::trajectory::format_tum;
 use depthmesh::tsdf::mapper::TsdfMapper;
@@ -38,6 +40,8 @@ pub enum MapKind {
     Naive,
     /// TSDF fusion with marching cubes.
     Tsdf,
+    /// Voxel planes: per-voxel statistics, a plane patch per planar 2×2×2 window.
+    Planes,
 }
 
 /// Flags of `depthmesh simulate`.
@@ -81,9 +85,15 @@ pub struct SimulateArgs {
     /// `groundtruth.txt` the true poses, and the summary their error.
     #[arg(long)]
     pub track: bool,
+    #[command(flatten)]
+    pub planes: PlanesArgs,
     /// Write a dashboard image per iteration and the element plot (mabdi, naive).
     #[arg(long)]
     pub dashboard: bool,
+    /// Write `view.png`: the final mesh, lit and in its colours, from the
+    /// dashboard's third-person camera.
+    #[arg(long)]
+    pub view: bool,
     /// Output folder.
     #[arg(long)]
     pub out: PathBuf,
@@ -99,6 +109,7 @@ enum SimMap {
     Mabdi(Box<MabdiMapper>),
     Naive(Box<NaiveMapper>),
     Tsdf(Box<TsdfMapper>),
+    Planes(Box<PlanesMapper>),
 }
 
 impl SimMap {
@@ -107,6 +118,7 @@ impl SimMap {
             SimMap::Mabdi(m) => m.as_mut(),
             SimMap::Naive(m) => m.as_mut(),
             SimMap::Tsdf(m) => m.as_mut(),
+            SimMap::Planes(m) => m.as_mut(),
         }
     }
 
@@ -126,7 +138,7 @@ impl SimMap {
                 expected: None,
                 classes: m.classes(),
             },
-            SimMap::Tsdf(_) => return None,
+            SimMap::Tsdf(_) | SimMap::Planes(_) => return None,
         })
     }
 }
@@ -184,20 +196,19 @@ pub fn run_scene(args: &SimulateArgs, scene: &Scene, quiet: bool) -> Result<RunS
     if args.keep_removed {
         config.removal = None;
     }
+    if args.dashboard && matches!(args.map, MapKind::Tsdf | MapKind::Planes) {
+        bail!("--dashboard shows mesh addition: use it with --map mabdi or --map naive");
+    }
     let mut map = match args.map {
         MapKind::Mabdi => SimMap::Mabdi(Box::new(MabdiMapper::new(config)?)),
         MapKind::Naive => SimMap::Naive(Box::new(NaiveMapper::new(config)?)),
-        MapKind::Tsdf => {
-            if args.dashboard {
-                bail!("--dashboard shows mesh addition: use it with --map mabdi or --map naive");
-            }
-            SimMap::Tsdf(Box::new(TsdfMapper::new(
-                TsdfConfig::new(args.voxel),
-                sensor.intrinsics,
-                sensor.near,
-                sensor.far,
-            )?))
-        }
+        MapKind::Tsdf => SimMap::Tsdf(Box::new(TsdfMapper::new(
+            TsdfConfig::new(args.voxel),
+            sensor.intrinsics,
+            sensor.near,
+            sensor.far,
+        )?)),
+        MapKind::Planes => SimMap::Planes(Box::new(args.planes.mapper(sensor.intrinsics)?)),
     };
     let mut out = RunOutput::create(&args.out)?;
     let mut chunks = match &mut map {
@@ -276,20 +287,25 @@ pub fn run_scene(args: &SimulateArgs, scene: &Scene, quiet: bool) -> Result<RunS
     if let (SimMap::Tsdf(t), Some(c)) = (&map, &mut chunks) {
         c.summarise(t, &mut summary)?;
     }
+    if let SimMap::Planes(p) = &mut map {
+        planes::summarise(p, &mut summary);
+    }
     let mapper = map.mapper();
     let stats = mapper.stats();
     let name = mapper.name();
     let mesh = mapper.mesh();
     // ~1M samples at most keeps the check to about a second on any map.
     let spacing = ((mesh.area() / 1.0e6).sqrt() as f32).max(0.002);
-    let (within, within_1cm) = match &chunks {
+    let (within, within_1cm, within_2cm) = match &chunks {
         Some(c) => (
             c.fraction_within(mesh, &truth, 0.005)?,
             c.fraction_within(mesh, &truth, 0.01)?,
+            c.fraction_within(mesh, &truth, 0.02)?,
         ),
         None => (
             fraction_within(mesh, &truth, 0.005, spacing),
             fraction_within(mesh, &truth, 0.01, spacing),
+            fraction_within(mesh, &truth, 0.02, spacing),
         ),
     };
     let column = |name: &str| -> f64 { out.frames.iter().filter_map(|f| f.report.get(name)).sum() };
@@ -340,6 +356,10 @@ pub fn run_scene(args: &SimulateArgs, scene: &Scene, quiet: bool) -> Result<RunS
     // null for an empty map: there is no surface to judge.
     summary.insert("surface_within_5mm".into(), json!(within));
     summary.insert("surface_within_1cm".into(), json!(within_1cm));
+    summary.insert("surface_within_2cm".into(), json!(within_2cm));
+    if args.view {
+        views::write_view(scene, &poses, mesh, &out.path("view.png"))?;
+    }
     let summary = match &chunks {
         Some(c) => c.finish(&out, name, mesh, stats.bytes, summary)?,
         None => out.finish(name, mesh, stats.bytes, summary)?,

@@ -64,17 +64,10 @@ impl Dashboard {
         dir: &Path,
     ) -> Result<Self> {
         std::fs::create_dir_all(dir).with_context(|| format!("cannot create {}", dir.display()))?;
-        let bounds = scene.object_bounds();
-        let centre = bounds.center();
-        let reach = poses
-            .iter()
-            .map(|p| (p.translation - centre).length())
-            .fold(bounds.extent().length() * 0.5, f32::max);
-        let eye = centre + Vec3::new(-0.55, 0.75, 1.0).normalize() * reach * 1.9;
         Ok(Dashboard {
             map,
             dir: dir.to_path_buf(),
-            view_pose: Pose::look_at(eye, centre, Vec3::Y),
+            view_pose: third_person_pose(scene, poses),
             view: Intrinsics::from_vertical_fov(PANEL_WIDTH, PANEL_HEIGHT, 45.0),
             sensor,
             poses: poses.to_vec(),
@@ -185,18 +178,7 @@ impl Dashboard {
             let t = self.target.triangle[p];
             let mut colour = BACKGROUND;
             if t != NO_TRIANGLE {
-                let [a, b, c] = triangles[t as usize];
-                let corners = [a, b, c].map(|k| mesh.positions[k as usize]);
-                let shade = normal_shade(
-                    (corners[1] - corners[0]).cross(corners[2] - corners[0]),
-                    light,
-                );
-                let base = mesh
-                    .colors
-                    .get(a as usize)
-                    .copied()
-                    .unwrap_or([200, 200, 200]);
-                colour = base.map(|x| (x as f32 * shade) as u8);
+                colour = lit_colour(mesh, triangles[t as usize], light);
             }
             let e = self.environment_target.triangle[p];
             let (dm, de) = (
@@ -245,6 +227,63 @@ impl Dashboard {
         }
         canvas
     }
+}
+
+/// A camera above and outside the scene's objects and the sensor path,
+/// looking at the objects.
+fn third_person_pose(scene: &Scene, poses: &[Pose]) -> Pose {
+    let bounds = scene.object_bounds();
+    let centre = bounds.center();
+    let reach = poses
+        .iter()
+        .map(|p| (p.translation - centre).length())
+        .fold(bounds.extent().length() * 0.5, f32::max);
+    let eye = centre + Vec3::new(-0.55, 0.75, 1.0).normalize() * reach * 1.9;
+    Pose::look_at(eye, centre, Vec3::Y)
+}
+
+/// A triangle's vertex colour (grey without colours), lit two-sided.
+fn lit_colour(mesh: &Mesh, [a, b, c]: [u32; 3], light: Vec3) -> [u8; 3] {
+    let corners = [a, b, c].map(|k| mesh.positions[k as usize]);
+    let shade = normal_shade(
+        (corners[1] - corners[0]).cross(corners[2] - corners[0]),
+        light,
+    );
+    let base = mesh
+        .colors
+        .get(a as usize)
+        .copied()
+        .unwrap_or([200, 200, 200]);
+    base.map(|x| (x as f32 * shade) as u8)
+}
+
+/// Writes `mesh` alone, lit and in its colours, from the dashboard's
+/// third-person camera, half as close so the objects fill the image.
+pub fn write_view(scene: &Scene, poses: &[Pose], mesh: &Mesh, path: &Path) -> Result<()> {
+    let far = third_person_pose(scene, poses);
+    let centre = scene.object_bounds().center();
+    let eye = centre + (far.translation - centre) * 0.5;
+    let pose = Pose::look_at(eye, centre, Vec3::Y);
+    let view = Intrinsics::from_vertical_fov(1280, 960, 45.0);
+    let mut target = RenderTarget::default();
+    Rasterizer::new().render(
+        &mesh.positions,
+        &mesh.triangles,
+        &view,
+        &pose,
+        0.05,
+        &mut target,
+    );
+    let light = pose.transform_vector(Vec3::new(-0.3, -0.6, -1.0));
+    let mut canvas = Canvas::new(view.width, view.height, BACKGROUND);
+    for (px, &t) in canvas.pixels.iter_mut().zip(&target.triangle) {
+        if t != NO_TRIANGLE {
+            *px = lit_colour(mesh, mesh.triangles[t as usize], light);
+        }
+    }
+    let png = canvas.encode_png();
+    write_atomic(path, |w| w.write_all(&png))?;
+    Ok(())
 }
 
 /// The plot of map size by iteration; with `compare`, also the cumulative

@@ -373,3 +373,142 @@ fn reconstruct_fuses_a_frames_folder() {
     assert_fails_with(&again, &["frame-000001.pose.txt"]);
     std::fs::remove_dir_all(dir).unwrap();
 }
+
+#[test]
+fn voxel_planes_follow_the_run_contract() {
+    let dir = scratch("planes");
+    let sim = dir.join("sim");
+    let result = depthmesh(&[
+        "simulate",
+        "--scene",
+        TABLE,
+        "--map",
+        "planes",
+        "--iterations",
+        "3",
+        "--noise",
+        "kinect",
+        "--view",
+        "--quiet",
+        "--out",
+        sim.to_str().unwrap(),
+    ]);
+    common::ok(&result);
+    let summary: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(sim.join("summary.json")).unwrap()).unwrap();
+    assert_eq!(summary["map"], "planes");
+    let voxels = summary["voxels"].as_u64().unwrap();
+    assert!(voxels > 1000);
+    assert!(summary["planar_voxels"].as_u64().unwrap() > voxels / 2);
+    // 10 floats of 4 bytes per voxel, as the paper counts.
+    assert_eq!(
+        summary["representation_bytes"].as_u64().unwrap(),
+        voxels * 40
+    );
+    assert!(summary["surface_within_2cm"].as_f64().unwrap() > 0.95);
+    assert!(sim.join("view.png").is_file() && sim.join("scene.ply").is_file());
+    let mesh = depthmesh::mesh::io::read_mesh(&sim.join("mesh.ply")).unwrap();
+    assert!(mesh.triangle_count() > 1000);
+    assert_eq!(
+        mesh.colors.len(),
+        mesh.positions.len(),
+        "coloured by normal"
+    );
+
+    simulated_frames_folder(&dir);
+    let real = dir.join("real");
+    let result = depthmesh(&[
+        "reconstruct",
+        dir.to_str().unwrap(),
+        "--map",
+        "planes",
+        "--plane-voxel",
+        "0.1",
+        "--remesh-every",
+        "1",
+        "--quiet",
+        "--out",
+        real.to_str().unwrap(),
+    ]);
+    common::ok(&result);
+    let summary: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(real.join("summary.json")).unwrap()).unwrap();
+    for key in [
+        "voxels",
+        "planar_voxels",
+        "representation_bytes",
+        "mesh_seconds",
+    ] {
+        assert!(summary.get(key).is_some(), "summary lacks {key}");
+    }
+    assert!(summary["triangles"].as_u64().unwrap() > 100);
+    let stats = std::fs::read_to_string(real.join("stats.csv")).unwrap();
+    let header: Vec<&str> = stats.lines().next().unwrap().split(',').collect();
+    let column = header
+        .iter()
+        .position(|h| *h == "remeshed_windows")
+        .unwrap();
+    assert!(stats.lines().skip(1).all(|l| l
+        .split(',')
+        .nth(column)
+        .unwrap()
+        .parse::<f64>()
+        .unwrap()
+        > 0.0));
+    std::fs::remove_dir_all(dir).unwrap();
+}
+
+#[test]
+fn bad_voxel_plane_flags_are_rejected() {
+    let planes = |extra: &[&'static str]| {
+        let mut args = vec!["--scene", TABLE, "--map", "planes"];
+        args.extend_from_slice(extra);
+        args
+    };
+    rejects(
+        "plane-cell",
+        &planes(&["--plane-cell", "0.12"]),
+        &["cell size"],
+    );
+    rejects(
+        "plane-voxel",
+        &planes(&["--plane-voxel", "0"]),
+        &["voxel size"],
+    );
+    rejects("epsilon", &planes(&["--epsilon=-1"]), &["epsilon"]);
+    rejects(
+        "planes-dashboard",
+        &planes(&["--dashboard"]),
+        &["--dashboard"],
+    );
+}
+
+#[test]
+fn the_study_writes_its_plots_and_table() {
+    let out = scratch("study");
+    let o = out.to_str().unwrap();
+    let result = depthmesh(&[
+        "study",
+        "--sim-iterations",
+        "2",
+        "--voxels",
+        "0.05,0.1",
+        "--quiet",
+        "--out",
+        o,
+    ]);
+    common::ok(&result);
+    for f in [
+        "runtime_vs_points.png",
+        "error_vs_size.png",
+        "study.csv",
+        "study.md",
+    ] {
+        assert!(out.join(f).is_file(), "{f} missing");
+    }
+    let csv = std::fs::read_to_string(out.join("study.csv")).unwrap();
+    assert_eq!(csv.lines().count(), 1 + 2 * 2, "{csv}");
+    let bad = depthmesh(&["study", "--voxels", "0", "--quiet", "--out", o]);
+    assert_fails_with(&bad, &["--voxels"]);
+    std::fs::remove_dir_all(out).unwrap();
+}

@@ -68,6 +68,20 @@ impl RenderTarget {
     }
 }
 
+/// Depth of a mesh seen from a pose (a fresh rasterizer: for occasional use).
+pub fn render_mesh_depth(mesh: &crate::Mesh, intrinsics: &Intrinsics, pose: &Pose) -> DepthImage {
+    let mut target = RenderTarget::default();
+    Rasterizer::new().render(
+        &mesh.positions,
+        &mesh.triangles,
+        intrinsics,
+        pose,
+        0.01,
+        &mut target,
+    );
+    target.depth
+}
+
 /// A reusable rasterizer; keep one per view so its buffers are reused.
 #[derive(Debug, Default)]
 pub struct Rasterizer {

@@ -18,7 +18,7 @@ use crate::image::{DepthImage, Frame};
 use crate::map::{IntegrateReport, MapStats, Mapper};
 use crate::mesh::Mesh;
 use crate::palette::iteration_color;
-use crate::raster::{ChunkBounds, Geometry, Rasterizer, RenderTarget};
+use crate::raster::{render_mesh_depth, ChunkBounds, Geometry, Rasterizer, RenderTarget};
 use classify::{classify, PixelClass, Threshold};
 use mesher::DepthMesher;
 use removal::Carver;
@@ -318,20 +318,6 @@ impl Mapper for MabdiMapper {
     fn stats(&self) -> MapStats {
         mesh_stats(&self.mesh)
     }
-}
-
-/// Depth of a mesh seen from a pose (a fresh rasterizer: for occasional use).
-fn render_mesh_depth(mesh: &Mesh, intrinsics: &Intrinsics, pose: &Pose) -> DepthImage {
-    let mut target = RenderTarget::default();
-    Rasterizer::new().render(
-        &mesh.positions,
-        &mesh.triangles,
-        intrinsics,
-        pose,
-        0.01,
-        &mut target,
-    );
-    target.depth
 }
 
 /// Meshes the novel pixels of a frame onto the end of `mesh`, in the colour

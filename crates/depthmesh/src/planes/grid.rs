@@ -82,12 +82,61 @@ impl PlaneGridConfig {
 /// Cell key → index into the cell list.
 type CellIndex = HashMap<IVec3, u32, BuildHasherDefault<KeyHasher>>;
 
-/// A point on its way into the grid: where it goes and where it is.
+/// An item (point or statistics) on its way into the grid: where it goes.
 #[derive(Clone, Copy)]
 struct Binned {
-    cell: IVec3,
+    /// Index of its cell in the cell list, [`NEW_CELL`] before allocation,
+    /// or [`SKIP`].
+    slot: u32,
+    /// Index of its voxel inside the cell.
     local: u32,
-    point: Vec3,
+    /// Index of the item in the input.
+    item: u32,
+}
+
+/// One cell's share of an insertion: its key, its voxels and its
+/// (voxel index, item index) entries.
+type CellJob<'a> = (IVec3, &'a mut [VoxelStats], &'a mut [(u32, u32)]);
+
+/// Slot of an item whose cell is not allocated yet.
+const NEW_CELL: u32 = u32::MAX;
+/// Slot of an item that has no voxel (non-finite or out of range).
+const SKIP: u32 = u32::MAX - 1;
+
+/// What one [`PlaneGrid::insert_points`] call did.
+#[derive(Clone, Debug, Default, PartialEq)]
+pub struct Inserted {
+    /// Items (points or statistics) added; the others were non-finite or out of range.
+    pub items: usize,
+    /// Points added.
+    pub points: usize,
+    /// Voxels that held no point before.
+    pub new_voxels: usize,
+    /// Every voxel whose statistics changed, each once.
+    pub changed: Vec<IVec3>,
+}
+
+/// The voxel holding `p` for voxels of `1 / scale` metres, see
+/// [`PlaneGrid::voxel_of`].
+#[inline]
+fn voxel_at(scale: f64, p: Vec3) -> Option<IVec3> {
+    // Headroom below i32::MAX so `cell * n + n` and `corner ± 1` cannot overflow.
+    let limit = f64::from(i32::MAX / 4);
+    let mut v = [0i32; 3];
+    for (out, c) in v.iter_mut().zip([p.x, p.y, p.z]) {
+        // f64 so a point a rounding error inside a voxel border is binned
+        // the same way in every call.
+        let x = f64::from(c) * scale;
+        // `!(x.abs() < limit)` in effect: NaN fails too.
+        if x.abs() >= limit || x.is_nan() {
+            return None;
+        }
+        // Floor by truncation: `f64::floor` is a libm call without SSE4.1,
+        // and binning is the hottest loop of insertion.
+        let t = x as i32;
+        *out = t - i32::from(f64::from(t) > x);
+    }
+    Some(IVec3::from_array(v))
 }
 
 /// Voxel statistics in a semi-sparse blockwise grid.
@@ -106,6 +155,8 @@ pub struct PlaneGrid {
     keys: Vec<IVec3>,
     /// Each cell's n³ voxels, x fastest.
     cells: Vec<Box<[VoxelStats]>>,
+    /// Voxels holding at least one point.
+    occupied: usize,
 }
 
 impl PlaneGrid {
@@ -119,6 +170,7 @@ impl PlaneGrid {
             index: CellIndex::default(),
             keys: Vec::new(),
             cells: Vec::new(),
+            occupied: 0,
         })
     }
 
@@ -140,17 +192,7 @@ impl PlaneGrid {
     /// The voxel holding `p`, or `None` for a non-finite point or one so far
     /// away its voxel coordinates would overflow.
     pub fn voxel_of(&self, p: Vec3) -> Option<IVec3> {
-        // f64 so a point a rounding error inside a voxel border is binned
-        // the same way in every call.
-        let s = 1.0 / f64::from(self.config.voxel);
-        let v = [p.x, p.y, p.z].map(|c| (f64::from(c) * s).floor());
-        // Headroom below i32::MAX so `cell * n + n` and `corner ± 1` cannot overflow.
-        let limit = f64::from(i32::MAX / 4);
-        if v.iter().all(|c| c.is_finite() && c.abs() < limit) {
-            Some(IVec3::new(v[0] as i32, v[1] as i32, v[2] as i32))
-        } else {
-            None
-        }
+        voxel_at(1.0 / f64::from(self.config.voxel), p)
     }
 
     /// Position of the grid vertex `corner` (the lowest corner of voxel `corner`).
@@ -169,67 +211,174 @@ impl PlaneGrid {
     }
 
     /// Adds `points` to the statistics of their voxels, allocating the cells
-    /// they first touch; returns how many were added (non-finite and
-    /// out-of-range points are skipped).
-    ///
-    /// Points are binned and sorted by cell in parallel (stably, so each
-    /// voxel sees its points in input order and the result does not depend
-    /// on the thread count), then every touched cell is filled by one task.
-    pub fn insert_points(&mut self, points: &[Vec3]) -> usize {
-        let mut binned: Vec<Binned> = points
-            .par_iter()
-            .filter_map(|&p| {
-                let v = self.voxel_of(p)?;
-                let (cell, local) = self.split(v);
-                Some(Binned {
-                    cell,
-                    local: local as u32,
-                    point: p,
-                })
-            })
-            .collect();
-        binned.par_sort_by_key(|b| (b.cell.x, b.cell.y, b.cell.z, b.local));
+    /// they first touch; reports how many were added (non-finite and
+    /// out-of-range points are skipped) and which voxels changed.
+    pub fn insert_points(&mut self, points: &[Vec3]) -> Inserted {
+        let scale = 1.0 / f64::from(self.config.voxel);
+        let mut inserted = self.fill(
+            points,
+            |p| voxel_at(scale, *p),
+            |s, p| s.add_point(p.as_dvec3()),
+        );
+        inserted.points = inserted.items;
+        inserted
+    }
 
-        // Runs of one cell each; new cells are allocated here, serially,
-        // because the index is shared.
-        let voxels = (self.n as usize).pow(3);
-        let mut runs: Vec<(u32, std::ops::Range<usize>)> = Vec::new();
-        let mut start = 0;
-        while start < binned.len() {
-            let cell = binned[start].cell;
-            let mut end = start + 1;
-            while end < binned.len() && binned[end].cell == cell {
-                end += 1;
-            }
-            let next = self.cells.len() as u32;
-            let slot = *self.index.entry(cell).or_insert(next);
-            if slot == next {
-                self.keys.push(cell);
-                self.cells
-                    .push(vec![VoxelStats::EMPTY; voxels].into_boxed_slice());
-            }
-            runs.push((slot, start..end));
-            start = end;
+    /// Merges ready-made statistics into voxels (eqs. 2–3), e.g. those of
+    /// runs of pixels gathered by [`super::runs::depth_runs`]; out-of-range
+    /// voxels are skipped.
+    pub fn insert_stats(&mut self, items: &[(IVec3, VoxelStats)]) -> Inserted {
+        let limit = i32::MAX / 4;
+        let mut inserted = self.fill(
+            items,
+            |(v, _)| (v.abs().max_element() < limit).then_some(*v),
+            |s, (_, other)| s.merge(other),
+        );
+        inserted.points = items
+            .iter()
+            .filter(|(v, _)| v.abs().max_element() < limit)
+            .map(|(_, s)| s.count as usize)
+            .sum();
+        inserted
+    }
+
+    /// Folds `items` into the voxels `voxel` assigns them (`None`: skip)
+    /// with `add`, allocating the cells they first touch.
+    ///
+    /// Items are binned in parallel, grouped by cell with a stable counting
+    /// sort (a frame touches few cells, and consecutive pixels mostly share
+    /// one), then every touched cell is filled by one task. Each voxel sees
+    /// its items in input order, so the result does not depend on the
+    /// thread count.
+    fn fill<T: Sync>(
+        &mut self,
+        items: &[T],
+        voxel: impl Fn(&T) -> Option<IVec3> + Sync,
+        add: impl Fn(&mut VoxelStats, &T) + Sync,
+    ) -> Inserted {
+        // Bin in parallel (an indexed map, so the output is allocated once);
+        // cells already in the index get their slot here (consecutive items
+        // mostly share a cell, so the last one is remembered), new ones are
+        // marked and allocated below.
+        let mut binned: Vec<Binned> = items
+            .par_iter()
+            .enumerate()
+            .map_init(
+                || None,
+                |last: &mut Option<(IVec3, u32)>, (item, t)| {
+                    let Some(v) = voxel(t) else {
+                        return Binned {
+                            slot: SKIP,
+                            local: 0,
+                            item: item as u32,
+                        };
+                    };
+                    let (cell, local) = self.split(v);
+                    let slot = match *last {
+                        Some((c, slot)) if c == cell => slot,
+                        _ => {
+                            let slot = self.index.get(&cell).copied().unwrap_or(NEW_CELL);
+                            *last = Some((cell, slot));
+                            slot
+                        }
+                    };
+                    Binned {
+                        slot,
+                        local: local as u32,
+                        item: item as u32,
+                    }
+                },
+            )
+            .collect();
+        binned.retain(|b| b.slot != SKIP);
+        // New cells are allocated serially, because the index is shared.
+        for b in binned.iter_mut().filter(|b| b.slot == NEW_CELL) {
+            let v = voxel(&items[b.item as usize]).expect("binned items have a voxel");
+            b.slot = self.slot(self.split(v).0);
         }
 
-        // Each run owns a distinct cell: hand out disjoint `&mut`s.
-        let mut slots: Vec<Option<&mut [VoxelStats]>> =
-            self.cells.iter_mut().map(|c| Some(&mut **c)).collect();
-        let jobs: Vec<(&mut [VoxelStats], &[Binned])> = runs
-            .into_iter()
-            .map(|(slot, range)| {
-                let cell = slots[slot as usize]
-                    .take()
-                    .expect("each cell appears in one run after the sort");
-                (cell, &binned[range])
+        // Stable counting sort by slot: `starts[s]..starts[s + 1]` is cell s.
+        let mut starts = vec![0usize; self.cells.len() + 1];
+        for b in &binned {
+            starts[b.slot as usize + 1] += 1;
+        }
+        for i in 1..starts.len() {
+            starts[i] += starts[i - 1];
+        }
+        let mut next = starts.clone();
+        let mut sorted = vec![(0u32, 0u32); binned.len()];
+        for b in &binned {
+            let i = &mut next[b.slot as usize];
+            sorted[*i] = (b.local, b.item);
+            *i += 1;
+        }
+
+        // Each touched cell is one job with a distinct `&mut` to its voxels
+        // and to its entries.
+        let n = self.n;
+        let mut rest = &mut sorted[..];
+        let mut jobs: Vec<CellJob> = Vec::new();
+        for (s, (cell, &key)) in self.cells.iter_mut().zip(&self.keys).enumerate() {
+            let (mine, tail) = rest.split_at_mut(starts[s + 1] - starts[s]);
+            rest = tail;
+            if !mine.is_empty() {
+                jobs.push((key, &mut **cell, mine));
+            }
+        }
+        let per_cell: Vec<(usize, Vec<IVec3>)> = jobs
+            .into_par_iter()
+            .map(|(key, cell, entries)| {
+                // In voxel order, so the cell's memory is walked once; the
+                // sort is stable, so each voxel still gets its items in
+                // input order.
+                entries.sort_by_key(|&(local, _)| local);
+                let mut touched = vec![0u64; cell.len().div_ceil(64)];
+                let mut new = 0;
+                for &mut (local, item) in entries {
+                    let stats = &mut cell[local as usize];
+                    new += usize::from(stats.count == 0);
+                    add(stats, &items[item as usize]);
+                    touched[local as usize / 64] |= 1 << (local % 64);
+                }
+                let changed = touched
+                    .iter()
+                    .enumerate()
+                    .flat_map(|(w, &bits)| {
+                        (0..64).filter(move |b| bits >> b & 1 == 1).map(move |b| {
+                            let l = (w * 64 + b) as i32;
+                            key * n + IVec3::new(l % n, (l / n) % n, l / (n * n))
+                        })
+                    })
+                    .collect();
+                (new, changed)
             })
             .collect();
-        jobs.into_par_iter().for_each(|(cell, pts)| {
-            for b in pts {
-                cell[b.local as usize].add_point(b.point.as_dvec3());
-            }
-        });
-        binned.len()
+        let new_voxels = per_cell.iter().map(|(new, _)| new).sum();
+        self.occupied += new_voxels;
+        Inserted {
+            items: binned.len(),
+            points: 0,
+            new_voxels,
+            changed: per_cell.into_iter().flat_map(|(_, c)| c).collect(),
+        }
+    }
+
+    /// The slot of `cell` in the cell list, allocating it when new.
+    fn slot(&mut self, cell: IVec3) -> u32 {
+        let next = self.cells.len() as u32;
+        let slot = *self.index.entry(cell).or_insert(next);
+        if slot == next {
+            self.keys.push(cell);
+            let voxels = (self.n as usize).pow(3);
+            self.cells
+                .push(vec![VoxelStats::EMPTY; voxels].into_boxed_slice());
+        }
+        slot
+    }
+
+    /// Number of voxels holding at least one point.
+    pub fn occupied_count(&self) -> usize {
+        self.occupied
     }
 
     /// Statistics of voxel `v`, `None` when it holds no point.
@@ -246,6 +395,25 @@ impl PlaneGrid {
     pub fn neighbourhood(&self, corner: IVec3) -> VoxelStats {
         let mut acc = VoxelStats::EMPTY;
         // Fixed order, so a vertex's result is reproducible bit for bit.
+        let (cell, first) = self.split(corner - IVec3::ONE);
+        if self.split(corner).0 == cell {
+            // All eight in one cell (most windows): one lookup, then offsets.
+            let Some(&slot) = self.index.get(&cell) else {
+                return acc;
+            };
+            let (voxels, n) = (&self.cells[slot as usize], self.n as usize);
+            for dz in 0..2 {
+                for dy in 0..2 {
+                    for dx in 0..2 {
+                        let s = &voxels[first + dx + n * (dy + n * dz)];
+                        if s.count > 0 {
+                            acc.merge(s);
+                        }
+                    }
+                }
+            }
+            return acc;
+        }
         for dz in -1..=0 {
             for dy in -1..=0 {
                 for dx in -1..=0 {
@@ -339,7 +507,8 @@ mod tests {
     fn voxels_and_cells_are_addressed_consistently() {
         let mut g = grid();
         let p = Vec3::new(-0.01, 0.99, 1.01);
-        assert_eq!(g.insert_points(&[p, Vec3::NAN, Vec3::splat(1e12)]), 1);
+        let inserted = g.insert_points(&[p, Vec3::NAN, Vec3::splat(1e12)]);
+        assert_eq!(inserted.points, 1);
         let v = g.voxel_of(p).unwrap();
         assert_eq!(v, IVec3::new(-1, 19, 20));
         assert_eq!(g.voxel(v).unwrap().count, 1);
@@ -348,6 +517,8 @@ mod tests {
         let occ: Vec<_> = g.occupied_voxels().collect();
         assert_eq!(occ.len(), 1);
         assert_eq!(occ[0].0, v);
+        assert_eq!(inserted.changed, vec![v]);
+        assert_eq!((inserted.new_voxels, g.occupied_count()), (1, 1));
         assert!(g
             .corner_position(IVec3::new(2, -4, 20))
             .abs_diff_eq(Vec3::new(0.1, -0.2, 1.0), 1e-6));
@@ -378,6 +549,8 @@ mod tests {
         for (v, s) in a.occupied_voxels() {
             assert_close(s, b.voxel(v).unwrap());
         }
+        assert_eq!(a.occupied_count(), a.occupied_voxels().count());
+        assert_eq!(b.occupied_count(), a.occupied_count());
         let total: u32 = a.occupied_voxels().map(|(_, s)| s.count).sum();
         assert_eq!(total, 20_000);
     }

@@ -1,5 +1,5 @@
 //! Voxel planes (Ryde, Dhiman and Platt, "Voxel Planes: Rapid Visualization
-//! and Meshification of Point Cloud Ensembles"): the statistics core.
+//! and Meshification of Point Cloud Ensembles").
 //!
 //! Points are binned into fine voxels (0.05 m) held in a semi-sparse map of
 //! coarse cells (1 m), see [`grid`]. Each voxel keeps only sufficient
@@ -12,14 +12,22 @@
 //! eigenvalues are large and one small, [`is_planar`]; its smallest
 //! eigenvector is the plane normal.
 //!
-//! Meshing the planar windows is not here yet.
+//! A planar window is meshed ([`mapper`]) by cutting its plane with the
+//! voxel-sized cube centred on its vertex ([`polygon`], eq. 4): those cubes
+//! tile space, so the patches of neighbouring windows tessellate. Patches are
+//! coloured by their unoriented normal ([`crate::palette::normal_color`],
+//! eqs. 5–7), and only windows touching a changed voxel are re-meshed.
 
 pub mod eigen;
 pub mod grid;
+pub mod mapper;
+pub mod polygon;
+pub mod runs;
 pub mod stats;
 
 pub use eigen::{symmetric_eigen, SymmetricEigen};
-pub use grid::{PlaneGrid, PlaneGridConfig};
+pub use grid::{Inserted, PlaneGrid, PlaneGridConfig};
+pub use mapper::{PlanesConfig, PlanesMapper};
 pub use stats::{Sym3, VoxelStats};
 
 /// The paper's anticipated point noise ε in metres (sensor noise plus
