@@ -7,10 +7,6 @@
 
 use glam::{DMat3, DVec3};
 
-/// Sweeps after which the rotation stops; Jacobi converges quadratically, a
-/// 3×3 matrix in f64 needs 4–6.
-const MAX_SWEEPS: usize = 32;
-
 /// Eigenvalues and eigenvectors of a symmetric matrix.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct SymmetricEigen {
@@ -24,69 +20,13 @@ pub struct SymmetricEigen {
 /// Eigen-decomposition of `m`, which must be symmetric (only the upper
 /// triangle's values are trusted to match the lower one).
 pub fn symmetric_eigen(m: DMat3) -> SymmetricEigen {
-    let mut a = m.to_cols_array_2d();
-    let mut v = [[1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]];
-    let norm2: f64 = a.iter().flatten().map(|x| x * x).sum();
-    for _ in 0..MAX_SWEEPS {
-        let off2 = 2.0 * (a[0][1] * a[0][1] + a[0][2] * a[0][2] + a[1][2] * a[1][2]);
-        // Relative to the whole matrix: what is left is below rounding.
-        if off2 <= (f64::EPSILON * f64::EPSILON) * norm2 * 1e-4 || !off2.is_finite() {
-            break;
-        }
-        for (p, q) in [(0, 1), (0, 2), (1, 2)] {
-            rotate(&mut a, &mut v, p, q);
-        }
-    }
-    // `a` and `v` are column-major arrays: `v[i]` is the i-th eigenvector.
-    let mut order = [0, 1, 2];
-    order.sort_by(|&i, &j| a[i][i].total_cmp(&a[j][j]));
-    let values = order.map(|i| a[i][i]);
-    let mut vectors = order.map(|i| DVec3::from_array(v[i]).normalize_or_zero());
+    let (values, vectors) = crate::linalg::symmetric_eigen(&m.transpose().to_cols_array_2d());
+    let mut vectors = vectors.map(|v| DVec3::from_array(v).normalize_or_zero());
     // A right-handed frame, so callers can rely on v0 = v1 × v2.
     if vectors[0].dot(vectors[1].cross(vectors[2])) < 0.0 {
         vectors[0] = -vectors[0];
     }
     SymmetricEigen { values, vectors }
-}
-
-/// One Jacobi rotation zeroing `a[p][q]` (Numerical Recipes' form, which
-/// chooses the smaller rotation angle for stability).
-// Index loops: the p/q row and column updates read as the textbook formulas.
-#[allow(clippy::needless_range_loop)]
-fn rotate(a: &mut [[f64; 3]; 3], v: &mut [[f64; 3]; 3], p: usize, q: usize) {
-    let apq = a[q][p];
-    if apq == 0.0 {
-        return;
-    }
-    let theta = (a[q][q] - a[p][p]) / (2.0 * apq);
-    let t = if theta.abs() > 1e150 {
-        // θ² would overflow; t ≈ 1/(2θ) there.
-        0.5 / theta
-    } else {
-        theta.signum() / (theta.abs() + (theta * theta + 1.0).sqrt())
-    };
-    let c = 1.0 / (t * t + 1.0).sqrt();
-    let s = t * c;
-    // a ← a·P (columns p, q), then a ← Pᵀ·a (rows p, q); arrays are
-    // column-major, so `a[col][row]`.
-    for k in 0..3 {
-        let (akp, akq) = (a[p][k], a[q][k]);
-        a[p][k] = c * akp - s * akq;
-        a[q][k] = s * akp + c * akq;
-    }
-    for k in 0..3 {
-        let (apk, aqk) = (a[k][p], a[k][q]);
-        a[k][p] = c * apk - s * aqk;
-        a[k][q] = s * apk + c * aqk;
-    }
-    // Exactly zero, rather than the rounding residue, so later sweeps see it.
-    a[q][p] = 0.0;
-    a[p][q] = 0.0;
-    for k in 0..3 {
-        let (vkp, vkq) = (v[p][k], v[q][k]);
-        v[p][k] = c * vkp - s * vkq;
-        v[q][k] = s * vkp + c * vkq;
-    }
 }
 
 #[cfg(test)]
