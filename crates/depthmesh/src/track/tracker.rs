@@ -19,7 +19,9 @@ pub const LEVELS: usize = 3;
 /// normals cover too much of the frame.
 pub const MIN_MODEL_WIDTH: u32 = 160;
 
-/// Tracking parameters; the defaults are KinectFusion's where it has one.
+/// Tracking parameters; the defaults are KinectFusion's where it has one,
+/// except the iterations: Open3D's (6, 3, 1) track 7-Scenes as accurately
+/// as KinectFusion's (10, 5, 4) at a third of the cost.
 #[derive(Clone, Debug, PartialEq)]
 pub struct TrackerConfig {
     /// ICP iterations per level, coarsest first.
@@ -54,7 +56,7 @@ pub struct TrackerConfig {
 impl Default for TrackerConfig {
     fn default() -> Self {
         TrackerConfig {
-            iterations: [6, 3, 2],
+            iterations: [6, 3, 1],
             max_distance: 0.1,
             max_normal_angle: 20.0,
             bilateral: Some(BilateralParams::default()),
