@@ -10,18 +10,9 @@
 # Needs ../shared beside the repository (or DEPTHMESH_SHARED).
 set -euo pipefail
 cd "$(dirname "$0")/.."
-shared=${DEPTHMESH_SHARED:-../shared}
-data=$shared/data/7scenes-redkitchen
-if [[ ! -x $shared/tools/setup-anchors.sh || ! -d $data ]]; then
-  echo "error: reference tools or 7-Scenes frames not found under $shared (set DEPTHMESH_SHARED)" >&2
-  exit 1
-fi
 end=${1:-300}
 voxel=${2:-0.01}
-PY=$("$shared/tools/setup-anchors.sh")
-cargo build --release --quiet
-work=$(mktemp -d)
-trap 'rm -rf "$work"' EXIT
+source bench/kitchen_setup.sh
 ./target/release/depthmesh reconstruct "$data" --frames "0..$end" --voxel "$voxel" --track --quiet --out "$work/ours"
 ours_ate=$("$PY" "$shared/tools/trajectory_error.py" "$work/ours/trajectory.txt" --frames-folder "$data" | tail -1)
 theirs=$("$PY" "$shared/tools/open3d_slam.py" "$data" --end "$end" --voxel "$voxel" --trajectory "$work/open3d.txt" | tail -1)

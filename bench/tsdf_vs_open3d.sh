@@ -9,18 +9,9 @@
 # Needs ../shared beside the repository (or DEPTHMESH_SHARED).
 set -euo pipefail
 cd "$(dirname "$0")/.."
-shared=${DEPTHMESH_SHARED:-../shared}
-data=$shared/data/7scenes-redkitchen
-if [[ ! -x $shared/tools/setup-anchors.sh || ! -d $data ]]; then
-  echo "error: reference tools or 7-Scenes frames not found under $shared (set DEPTHMESH_SHARED)" >&2
-  exit 1
-fi
 end=${1:-100}
 voxel=${2:-0.01}
-PY=$("$shared/tools/setup-anchors.sh")
-cargo build --release --quiet
-work=$(mktemp -d)
-trap 'rm -rf "$work"' EXIT
+source bench/kitchen_setup.sh
 ./target/release/depthmesh reconstruct "$data" --frames "0..$end" --voxel "$voxel" --quiet --out "$work/ours"
 ./target/release/depthmesh reconstruct "$data" --frames "0..$end" --voxel "$voxel" --remesh-every 1 --quiet --out "$work/every"
 theirs=$("$PY" "$shared/tools/open3d_tsdf.py" "$data" --end "$end" --voxel "$voxel" --out "$work/open3d.ply" | tail -1)
