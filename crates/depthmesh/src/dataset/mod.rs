@@ -168,6 +168,17 @@ enum FramePose {
     File(PathBuf),
 }
 
+impl FramePose {
+    /// The pose, reading its file if it has one.
+    fn read(&self) -> Result<Option<Pose>> {
+        Ok(match self {
+            FramePose::Absent => None,
+            FramePose::Known(pose) => Some(*pose),
+            FramePose::File(path) => Some(frames_folder::read_pose(path)?),
+        })
+    }
+}
+
 /// One frame's files and metadata, as a reader finds them.
 #[derive(Clone, Debug)]
 struct FrameFiles {
@@ -279,11 +290,7 @@ impl Dataset {
             Some(path) if self.options.color => Some(color::read_color(path)?),
             _ => None,
         };
-        let pose = match &files.pose {
-            FramePose::Absent => None,
-            FramePose::Known(pose) => Some(*pose),
-            FramePose::File(path) => Some(frames_folder::read_pose(path)?),
-        };
+        let pose = files.pose.read()?;
         Ok(Frame {
             index: files.number,
             timestamp: files.timestamp,
@@ -298,12 +305,8 @@ impl Dataset {
     pub fn trajectory(&self) -> Result<Vec<(f64, Pose)>> {
         let mut poses = Vec::with_capacity(self.frames.len());
         for files in &self.frames {
-            match &files.pose {
-                FramePose::Absent => {}
-                FramePose::Known(pose) => poses.push((files.timestamp, *pose)),
-                FramePose::File(path) => {
-                    poses.push((files.timestamp, frames_folder::read_pose(path)?));
-                }
+            if let Some(pose) = files.pose.read()? {
+                poses.push((files.timestamp, pose));
             }
         }
         Ok(poses)
