@@ -14,19 +14,10 @@
 # Needs ../shared (or DEPTHMESH_SHARED) and node/npm for the validator.
 set -euo pipefail
 cd "$(dirname "$0")/.."
-shared=$(realpath "${DEPTHMESH_SHARED:-../shared}")
-if [[ ! -x $shared/tools/setup-anchors.sh ]]; then
-  echo "error: reference tools not found in $shared/tools (set DEPTHMESH_SHARED)" >&2
-  exit 1
-fi
-PY=$("$shared/tools/setup-anchors.sh")
-cargo build --release --quiet
+source bench/setup.sh
 bin=$PWD/target/release/depthmesh
-work=$(mktemp -d)
-trap 'rm -rf "$work"' EXIT
 mesh=${1:-}
 if [[ -z $mesh ]]; then
-  data=$shared/data/7scenes-redkitchen
   [[ -d $data ]] || { echo "error: $data not found" >&2; exit 1; }
   mesh=$work/tsdf.ply
   "$PY" "$shared/tools/open3d_tsdf.py" "$data" --end 100 --voxel 0.01 --out "$mesh" | tail -1

@@ -7,15 +7,7 @@
 # DEPTHMESH_SHARED to the folder holding tools/).
 set -euo pipefail
 cd "$(dirname "$0")/.."
-shared=${DEPTHMESH_SHARED:-../shared}
-if [[ ! -x $shared/tools/setup-anchors.sh ]]; then
-  echo "error: reference tools not found in $shared/tools (set DEPTHMESH_SHARED)" >&2
-  exit 1
-fi
-PY=$("$shared/tools/setup-anchors.sh")
-cargo build --release --quiet
-work=$(mktemp -d)
-trap 'rm -rf "$work"' EXIT
+source bench/setup.sh
 ours=$(./target/release/depthmesh bench mabdi --out "$work" "$@" | tail -1)
 read -r fx cx cy < <(python3 -c 'import json,sys; d=json.loads(sys.argv[1]); print(d["fx"], d["cx"], d["cy"])' "$ours")
 theirs=$("$PY" "$shared/tools/open3d_raycast.py" "$work/mesh.ply" "$work/poses.txt" --fx "$fx" --cx "$cx" --cy "$cy" | tail -1)

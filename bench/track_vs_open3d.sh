@@ -12,7 +12,8 @@ set -euo pipefail
 cd "$(dirname "$0")/.."
 end=${1:-300}
 voxel=${2:-0.01}
-source bench/kitchen_setup.sh
+need_kitchen=1
+source bench/setup.sh
 ./target/release/depthmesh reconstruct "$data" --frames "0..$end" --voxel "$voxel" --track --quiet --out "$work/ours"
 ours_ate=$("$PY" "$shared/tools/trajectory_error.py" "$work/ours/trajectory.txt" --frames-folder "$data" | tail -1)
 theirs=$("$PY" "$shared/tools/open3d_slam.py" "$data" --end "$end" --voxel "$voxel" --trajectory "$work/open3d.txt" | tail -1)

@@ -11,7 +11,8 @@ set -euo pipefail
 cd "$(dirname "$0")/.."
 end=${1:-100}
 voxel=${2:-0.01}
-source bench/kitchen_setup.sh
+need_kitchen=1
+source bench/setup.sh
 ./target/release/depthmesh reconstruct "$data" --frames "0..$end" --voxel "$voxel" --quiet --out "$work/ours"
 ./target/release/depthmesh reconstruct "$data" --frames "0..$end" --voxel "$voxel" --remesh-every 1 --quiet --out "$work/every"
 theirs=$("$PY" "$shared/tools/open3d_tsdf.py" "$data" --end "$end" --voxel "$voxel" --out "$work/open3d.ply" | tail -1)
