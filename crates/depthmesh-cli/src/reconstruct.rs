@@ -14,7 +14,7 @@ use clap::{Args, ValueEnum};
 use depthmesh::atomic::write_atomic;
 use depthmesh::dataset::{Dataset, DatasetOptions, FrameRange, IntrinsicsSpec};
 use depthmesh::mabdi::{MabdiConfig, MabdiMapper};
-use depthmesh::map::{IntegrateReport, Mapper};
+use depthmesh::map::Mapper;
 use depthmesh::planes::PlanesMapper;
 use depthmesh::tsdf::mapper::TsdfMapper;
 use depthmesh::tsdf::raycast::RaycastImage;
@@ -160,19 +160,11 @@ pub fn run(args: &ReconstructArgs, quiet: bool) -> Result<()> {
     for frame in frames.by_ref() {
         let frame = frame?;
         let start = Instant::now();
-        let decided = poses.pose(frame.index, frame.pose, &frame.depth, map.mapper())?;
-        if let Some(message) = &decided.message {
-            bar.suspend(|| eprintln!("{message}"));
+        let fused = poses.fuse(&frame, frame.pose, map.mapper(), &bar, "frame")?;
+        if let Some(pose) = fused.pose {
+            out.trajectory.push((frame.timestamp, pose));
         }
-        let report = match decided.pose {
-            Some(pose) => {
-                out.trajectory.push((frame.timestamp, pose));
-                map.mapper()
-                    .integrate(&frame, &pose)
-                    .with_context(|| format!("frame {}", frame.index))?
-            }
-            None => IntegrateReport::default(),
-        };
+        let report = fused.report;
         let ms = start.elapsed().as_secs_f64() * 1e3;
         let stats = map.mapper().stats();
         out.frames.push(FrameStats {
@@ -181,14 +173,14 @@ pub fn run(args: &ReconstructArgs, quiet: bool) -> Result<()> {
             report,
             total_elements: stats.elements,
             total_vertices: stats.vertices,
-            track: decided.track,
+            track: fused.track,
         });
         if let RealMap::Tsdf(t) = &mut map {
             if let Some(c) = &mut chunks {
                 c.after_frame(t)?;
             }
         }
-        if let (RealMap::Tsdf(t), Some(pose)) = (&map, decided.pose) {
+        if let (RealMap::Tsdf(t), Some(pose)) = (&map, fused.pose) {
             if args.status_every > 0 && out.frames.len() % args.status_every == 0 {
                 write_status_image(t, &k, &pose, &mut raycast, &out.path("status"), frame.index)?;
             }

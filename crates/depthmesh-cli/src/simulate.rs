@@ -8,14 +8,14 @@ use crate::planes::{self, PlanesArgs};
 use crate::progress;
 use crate::tracking::PoseSource;
 use crate::views::{self, Dashboard, MapperView};
-use anyhow::{bail, Context, Result};
+use anyhow::{bail, Result};
 use clap::{Args, ValueEnum};
 use depthmesh::atomic::write_atomic;
 use depthmesh::eval::fraction_within;
 use depthmesh::eval::trajectory::trajectory_error;
 use depthmesh::mabdi::classify::Threshold;
 use depthmesh::mabdi::{MabdiConfig, MabdiMapper, NaiveMapper};
-use depthmesh::map::{IntegrateReport, Mapper};
+use depthmesh::map::Mapper;
 use depthmesh::mesh::ply::{write_ply, PlyFormat};
 use depthmesh::planes::PlanesMapper;
 use depthmesh::sim::{NoiseModel, PathSpec, Scene, SceneOptions, SimulatedSensor};
@@ -236,20 +236,11 @@ pub fn run_scene(args: &SimulateArgs, scene: &Scene, quiet: bool) -> Result<RunS
         let start = Instant::now();
         let frame = sensor.capture(scene, iteration, truth);
         let captured = start.elapsed().as_secs_f64() * 1e3;
-        let decided =
-            tracking.pose(iteration as usize, Some(*truth), &frame.depth, map.mapper())?;
-        if let Some(message) = &decided.message {
-            bar.suspend(|| eprintln!("{message}"));
+        let fused = tracking.fuse(&frame, Some(*truth), map.mapper(), &bar, "iteration")?;
+        if let Some(pose) = fused.pose {
+            out.trajectory.push((frame.timestamp, pose));
         }
-        let report = match decided.pose {
-            Some(pose) => {
-                out.trajectory.push((iteration as f64, pose));
-                map.mapper()
-                    .integrate(&frame, &pose)
-                    .with_context(|| format!("iteration {iteration}"))?
-            }
-            None => IntegrateReport::default(),
-        };
+        let report = fused.report;
         let ms = start.elapsed().as_secs_f64() * 1e3;
         if let (SimMap::Tsdf(t), Some(c)) = (&mut map, &mut chunks) {
             c.after_frame(t)?;
@@ -263,7 +254,7 @@ pub fn run_scene(args: &SimulateArgs, scene: &Scene, quiet: bool) -> Result<RunS
             report,
             total_elements: stats.elements,
             total_vertices: stats.vertices,
-            track: decided.track,
+            track: fused.track,
         });
         if let (Some(d), Some(view)) = (dashboard.as_mut(), map.view(new_triangles)) {
             d.draw(iteration, scene, &frame.depth, &view, &out.frames)?;

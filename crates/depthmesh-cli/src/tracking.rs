@@ -2,16 +2,28 @@
 //! against the map (only the first frame's pose is taken from the data).
 
 use crate::output::TrackStats;
-use anyhow::{bail, Result};
-use depthmesh::map::Mapper;
+use anyhow::{bail, Context, Result};
+use depthmesh::map::{IntegrateReport, Mapper};
 use depthmesh::track::{Tracker, TrackerConfig};
-use depthmesh::{DepthImage, Intrinsics, Pose};
+use depthmesh::{DepthImage, Frame, Intrinsics, Pose};
+use indicatif::ProgressBar;
 use serde_json::{json, Map, Value};
 use std::time::Instant;
 
+/// What became of one frame.
+#[derive(Debug)]
+pub struct Fused {
+    /// The pose it was fused with; `None` when tracking lost it.
+    pub pose: Option<Pose>,
+    /// What the map reported (nothing for a lost frame).
+    pub report: IntegrateReport,
+    /// Tracking figures, when tracking.
+    pub track: Option<TrackStats>,
+}
+
 /// The pose decided for one frame.
 #[derive(Debug)]
-pub struct FramePose {
+struct FramePose {
     /// The pose to fuse the frame with; `None` when tracking lost it.
     pub pose: Option<Pose>,
     /// Tracking figures, when tracking.
@@ -50,9 +62,37 @@ impl PoseSource {
         }
     }
 
+    /// Decides `frame`'s pose (`given` is the data's) and fuses the frame
+    /// into `map` unless tracking lost it; losses and recoveries are printed
+    /// above `bar`. Errors name the frame as `what` N.
+    pub fn fuse(
+        &mut self,
+        frame: &Frame,
+        given: Option<Pose>,
+        map: &mut dyn Mapper,
+        bar: &ProgressBar,
+        what: &str,
+    ) -> Result<Fused> {
+        let decided = self.pose(frame.index, given, &frame.depth, map)?;
+        if let Some(message) = &decided.message {
+            bar.suspend(|| eprintln!("{message}"));
+        }
+        let report = match decided.pose {
+            Some(pose) => map
+                .integrate(frame, &pose)
+                .with_context(|| format!("{what} {}", frame.index))?,
+            None => IntegrateReport::default(),
+        };
+        Ok(Fused {
+            pose: decided.pose,
+            report,
+            track: decided.track,
+        })
+    }
+
     /// The pose of frame `frame` with depth `depth`; `given` is the data's
     /// pose, `map` the map built so far.
-    pub fn pose(
+    fn pose(
         &mut self,
         frame: usize,
         given: Option<Pose>,

@@ -394,8 +394,7 @@ fn voxel_planes_follow_the_run_contract() {
         sim.to_str().unwrap(),
     ]);
     common::ok(&result);
-    let summary: serde_json::Value =
-        serde_json::from_str(&std::fs::read_to_string(sim.join("summary.json")).unwrap()).unwrap();
+    let summary = summary(&sim);
     assert_eq!(summary["map"], "planes");
     let voxels = summary["voxels"].as_u64().unwrap();
     assert!(voxels > 1000);
@@ -431,8 +430,7 @@ fn voxel_planes_follow_the_run_contract() {
         real.to_str().unwrap(),
     ]);
     common::ok(&result);
-    let summary: serde_json::Value =
-        serde_json::from_str(&std::fs::read_to_string(real.join("summary.json")).unwrap()).unwrap();
+    let summary = common::summary(&real);
     for key in [
         "voxels",
         "planar_voxels",

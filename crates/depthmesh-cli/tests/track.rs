@@ -3,13 +3,8 @@
 
 mod common;
 
-use common::{assert_fails_with, depthmesh, ok, scratch};
+use common::{assert_fails_with, depthmesh, ok, scratch, summary};
 use serde_json::Value;
-use std::path::Path;
-
-fn summary(out: &Path) -> Value {
-    serde_json::from_str(&std::fs::read_to_string(out.join("summary.json")).unwrap()).unwrap()
-}
 
 #[test]
 fn a_noisy_simulated_sequence_is_tracked_within_a_centimetre() {
