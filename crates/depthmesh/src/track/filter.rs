@@ -6,9 +6,8 @@ use crate::error::{Error, Result};
 use crate::image::DepthImage;
 use rayon::prelude::*;
 
-/// Range weights are tabulated per millimetre of depth difference, up to
-/// three standard deviations (beyond that a neighbour counts for nothing).
-const TABLE_STEP: f32 = 1e-3;
+/// Depth differences beyond this many standard deviations get no weight.
+const RANGE_CUTOFF: f32 = 3.0;
 
 /// Parameters of the bilateral filter.
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -58,16 +57,20 @@ impl BilateralParams {
     }
 }
 
-/// A bilateral filter with its weight tables, reusable across frames.
+/// A bilateral filter with its spatial weights, reusable across frames.
 #[derive(Clone, Debug)]
 pub struct Bilateral {
     radius: usize,
+    /// Spatial weight per window offset, row by row.
     spatial: Vec<f32>,
-    range: Vec<f32>,
+    /// `log2(e) / (2σ²)`: the range weight is `2^(-d²·this)`.
+    range_exponent: f32,
+    /// Squared depth difference of [`RANGE_CUTOFF`] standard deviations.
+    max_difference2: f32,
 }
 
 impl Bilateral {
-    /// Tabulates the weights of `params`.
+    /// Tabulates the spatial weights of `params`.
     pub fn new(params: BilateralParams) -> Result<Self> {
         params.validate()?;
         let r = params.radius as i32;
@@ -75,21 +78,27 @@ impl Bilateral {
             .flat_map(|dy| (-r..=r).map(move |dx| (dx * dx + dy * dy) as f32))
             .map(|d2| (-d2 / (2.0 * params.sigma_space * params.sigma_space)).exp())
             .collect();
-        let steps = (3.0 * params.sigma_depth / TABLE_STEP).ceil() as usize;
-        // A final zero for every larger difference, so the inner loop
-        // needs no branch.
-        let range = (0..=steps)
-            .map(|i| {
-                let d = i as f32 * TABLE_STEP;
-                (-d * d / (2.0 * params.sigma_depth * params.sigma_depth)).exp()
-            })
-            .chain([0.0])
-            .collect();
+        let s2 = params.sigma_depth * params.sigma_depth;
         Ok(Bilateral {
             radius: params.radius as usize,
             spatial,
-            range,
+            range_exponent: std::f32::consts::LOG2_E / (2.0 * s2),
+            max_difference2: RANGE_CUTOFF * RANGE_CUTOFF * s2,
         })
+    }
+
+    /// The weight of a neighbour at depth `depth` for a pixel at `centre`,
+    /// without its spatial factor; missing neighbours (depth 0) count for
+    /// nothing. Branch-free, so that loops over a row vectorise.
+    #[inline(always)]
+    fn range_weight(&self, centre: f32, depth: f32) -> f32 {
+        let d2 = (depth - centre) * (depth - centre);
+        let w = exp2_negative(d2 * self.range_exponent);
+        if d2 <= self.max_difference2 && depth > 0.0 {
+            w
+        } else {
+            0.0
+        }
     }
 
     /// Filters `input` into `out` (resized as needed). Pixels without depth
@@ -99,32 +108,92 @@ impl Bilateral {
         out.reset(input.width, input.height);
         let r = self.radius;
         let side = 2 * r + 1;
-        let last = self.range.len() - 1;
-        out.data.par_chunks_mut(w).enumerate().for_each(|(y, row)| {
-            let (y0, y1) = (y.saturating_sub(r), (y + r).min(h - 1));
-            for (x, o) in row.iter_mut().enumerate() {
-                let centre = input.data[y * w + x];
-                if centre <= 0.0 {
-                    continue;
+        let data = &input.data;
+        out.data.par_chunks_mut(w).enumerate().for_each_init(
+            || (vec![0.0f32; w], vec![0.0f32; w]),
+            |(sum, weight), (y, row)| {
+                if y < r || y + r >= h || w <= 2 * r {
+                    for (x, o) in row.iter_mut().enumerate() {
+                        *o = self.at_border(data, w, h, x, y);
+                    }
+                    return;
                 }
-                let (x0, x1) = (x.saturating_sub(r), (x + r).min(w - 1));
-                let (mut sum, mut weight) = (0.0f32, 0.0f32);
-                for yy in y0..=y1 {
-                    let line = &input.data[yy * w + x0..=yy * w + x1];
-                    let s = &self.spatial[(yy + r - y) * side + (x0 + r - x)..];
-                    for (&d, &ws) in line.iter().zip(s) {
-                        let step = (((d - centre).abs() * (1.0 / TABLE_STEP)) as usize).min(last);
-                        // Missing neighbours (0) count for nothing.
-                        let valid = if d > 0.0 { 1.0 } else { 0.0 };
-                        let wgt = ws * self.range[step] * valid;
-                        sum += wgt * d;
-                        weight += wgt;
+                // The interior of the row, one window offset at a time:
+                // each pass runs along contiguous rows and vectorises.
+                let n = w - 2 * r;
+                let centre = &data[y * w + r..y * w + r + n];
+                let (sum, weight) = (&mut sum[..n], &mut weight[..n]);
+                sum.fill(0.0);
+                weight.fill(0.0);
+                for (k, &ws) in self.spatial.iter().enumerate() {
+                    let start = (y + k / side - r) * w + k % side;
+                    let neighbours = &data[start..start + n];
+                    for (((s, wt), &c), &d) in sum
+                        .iter_mut()
+                        .zip(weight.iter_mut())
+                        .zip(centre)
+                        .zip(neighbours)
+                    {
+                        let g = ws * self.range_weight(c, d);
+                        *s += g * d;
+                        *wt += g;
                     }
                 }
-                *o = sum / weight;
-            }
-        });
+                for (((o, &c), &s), &wt) in row[r..r + n]
+                    .iter_mut()
+                    .zip(centre)
+                    .zip(&*sum)
+                    .zip(&*weight)
+                {
+                    *o = if c > 0.0 { s / wt } else { 0.0 };
+                }
+                for x in (0..r).chain(w - r..w) {
+                    row[x] = self.at_border(data, w, h, x, y);
+                }
+            },
+        );
     }
+
+    /// The filtered depth of pixel `(x, y)` whose window is cut by the
+    /// image border.
+    fn at_border(&self, data: &[f32], w: usize, h: usize, x: usize, y: usize) -> f32 {
+        let r = self.radius;
+        let side = 2 * r + 1;
+        let centre = data[y * w + x];
+        if centre <= 0.0 {
+            return 0.0;
+        }
+        let (mut sum, mut weight) = (0.0f32, 0.0f32);
+        for yy in y.saturating_sub(r)..=(y + r).min(h - 1) {
+            for xx in x.saturating_sub(r)..=(x + r).min(w - 1) {
+                let d = data[yy * w + xx];
+                let g =
+                    self.spatial[(yy + r - y) * side + (xx + r - x)] * self.range_weight(centre, d);
+                sum += g * d;
+                weight += g;
+            }
+        }
+        sum / weight
+    }
+}
+
+/// `2^-x` for `x ≥ 0` to a relative error below 1e-4, branch-free (so it
+/// vectorises; `f32::exp2` is a library call): the integer part of the
+/// exponent goes into the float's exponent bits, a polynomial covers the
+/// fraction. Underflows to 0 past `x = 126`.
+#[inline(always)]
+fn exp2_negative(x: f32) -> f32 {
+    let x = x.min(126.0);
+    // Adding 1.5·2²³ rounds to an integer, left in the low mantissa bits.
+    const ROUND: f32 = 12_582_912.0;
+    let shifted = ROUND - x;
+    let n = shifted.to_bits().wrapping_sub(ROUND.to_bits()) as i32;
+    let f = (shifted - ROUND) + x; // n − x ∈ [−0.5, 0.5]; 2^-x = 2^n · 2^-f
+    let f = -f;
+    // 2^f on [−0.5, 0.5] (minimax, degree 4).
+    let p = 1.0
+        + f * (std::f32::consts::LN_2 + f * (0.240_226_5 + f * (0.055_504_1 + f * 0.009_618_1)));
+    f32::from_bits((p.to_bits() as i32).wrapping_add(n << 23) as u32)
 }
 
 #[cfg(test)]
@@ -155,6 +224,17 @@ mod tests {
                 assert!((got - want).abs() < 0.0015, "({x},{y}): {got}");
             }
         }
+    }
+
+    #[test]
+    fn the_fast_power_of_two_is_accurate() {
+        for i in 0..=2000 {
+            let x = i as f32 * 0.01;
+            let (got, want) = (exp2_negative(x), (-x).exp2());
+            assert!((got - want).abs() <= 1e-4 * want, "2^-{x}: {got} vs {want}");
+        }
+        let tiny = exp2_negative(1000.0);
+        assert!((0.0..1e-37).contains(&tiny), "{tiny}");
     }
 
     #[test]
