@@ -36,17 +36,17 @@ impl Level {
         self.points.resize(w * h, Vec3::ZERO);
         self.normals.resize(w * h, Vec3::ZERO);
         let depth = &self.depth.data;
+        // `Intrinsics::back_project` with the divisions hoisted; a missing
+        // depth (0) gives the zero point.
+        let (inv_fx, inv_fy) = (1.0 / k.fx, 1.0 / k.fy);
         self.points
             .par_chunks_mut(w)
+            .zip(depth.par_chunks(w))
             .enumerate()
-            .for_each(|(y, row)| {
-                for (x, p) in row.iter_mut().enumerate() {
-                    let z = depth[y * w + x];
-                    *p = if z > 0.0 {
-                        k.back_project(x as f32, y as f32, z)
-                    } else {
-                        Vec3::ZERO
-                    };
+            .for_each(|(y, (row, depth))| {
+                let ray_y = (y as f32 - k.cy) * inv_fy;
+                for (x, (p, &z)) in row.iter_mut().zip(depth).enumerate() {
+                    *p = Vec3::new((x as f32 - k.cx) * inv_fx * z, ray_y * z, z);
                 }
             });
         let points = &self.points;
