@@ -19,11 +19,19 @@ pub struct RaycastImage {
     pub normals: Vec<Vec3>,
 }
 
-/// Trilinear samples of the volume, remembering the last block looked up
-/// (consecutive samples along a ray mostly stay in one block).
+/// Blocks a [`Sampler`] remembers (a power of two): a ray's samples near a
+/// block corner reach into up to eight blocks, and neighbouring rays
+/// revisit them.
+const CACHED_BLOCKS: usize = 16;
+
+/// Trilinear samples of the volume, remembering the blocks last looked up
+/// (a hash lookup costs more than the rest of a sample).
 struct Sampler<'a> {
     volume: &'a TsdfVolume,
-    last: Option<(IVec3, &'a Block)>,
+    /// Blocks looked up (`None`: not allocated), direct-mapped by key.
+    cache: [(IVec3, Option<&'a Block>); CACHED_BLOCKS],
+    /// Voxels per metre.
+    scale: f32,
 }
 
 /// log2 of [`BLOCK`]: block keys and offsets of voxels by shifts and masks.
@@ -31,20 +39,37 @@ const BLOCK_SHIFT: i32 = BLOCK.trailing_zeros() as i32;
 const _: () = assert!(1 << BLOCK_SHIFT == BLOCK);
 
 impl<'a> Sampler<'a> {
+    fn new(volume: &'a TsdfVolume) -> Self {
+        Sampler {
+            volume,
+            // A key no voxel maps to (block keys are voxel indices / 8).
+            cache: [(IVec3::MAX, None); CACHED_BLOCKS],
+            scale: 1.0 / volume.config().voxel,
+        }
+    }
+
     /// The block holding voxel `v` and the voxel's index in it.
     #[inline]
     fn locate(&mut self, v: IVec3) -> Option<(&'a Block, usize)> {
         let key = v >> BLOCK_SHIFT;
-        let block = match self.last {
-            Some((k, block)) if k == key => block,
-            _ => {
-                let block = &self.volume.blocks()[*self.volume.index().get(&key)? as usize];
-                self.last = Some((key, block));
-                block
-            }
-        };
+        // Neighbouring blocks land in different slots.
+        let slot =
+            (key.x ^ key.y.wrapping_mul(3) ^ key.z.wrapping_mul(5)) as usize & (CACHED_BLOCKS - 1);
+        let entry = &mut self.cache[slot];
+        if entry.0 != key {
+            *entry = (
+                key,
+                self.volume
+                    .index()
+                    .get(&key)
+                    .map(|&i| &self.volume.blocks()[i as usize]),
+            );
+        }
         let l = v & (BLOCK as i32 - 1);
-        Some((block, voxel_index(l.x as usize, l.y as usize, l.z as usize)))
+        Some((
+            entry.1?,
+            voxel_index(l.x as usize, l.y as usize, l.z as usize),
+        ))
     }
 
     fn voxel(&mut self, v: IVec3) -> Option<f32> {
@@ -55,9 +80,7 @@ impl<'a> Sampler<'a> {
     /// The distance at the voxel nearest to world point `p`: `Err(true)`
     /// when its block does not exist, `Err(false)` when it was never observed.
     fn nearest(&mut self, p: Vec3) -> Result<f32, bool> {
-        let (block, i) = self
-            .locate(floor(p / self.volume.config().voxel + 0.5))
-            .ok_or(true)?;
+        let (block, i) = self.locate(floor(p * self.scale + 0.5)).ok_or(true)?;
         if block.weight[i] == 0 {
             return Err(false);
         }
@@ -67,7 +90,7 @@ impl<'a> Sampler<'a> {
     /// The distance (in truncation units) at world point `p`, if all eight
     /// surrounding voxels were observed.
     fn sample(&mut self, p: Vec3) -> Option<f32> {
-        let g = p / self.volume.config().voxel;
+        let g = p * self.scale;
         let base = floor(g);
         let f = g - base.as_vec3();
         let local = base & (BLOCK as i32 - 1);
@@ -111,6 +134,13 @@ fn corner_weight(f: Vec3, c: usize) -> f32 {
     let pick = |bit: usize, t: f32| if c >> bit & 1 == 1 { t } else { 1.0 - t };
     pick(0, f.x) * pick(1, f.y) * pick(2, f.z)
 }
+
+/// Rays with a hint start this many truncation distances in front of the
+/// depth it measured. Starting closer saves steps but misses more of the
+/// foreground at silhouettes, where the hint saw the background: at 1.0 the
+/// 7-Scenes view renders 15 % faster, but the simulated room's ATE grows
+/// from 0.86 to 1.02 cm.
+const HINT_BACK: f32 = 1.5;
 
 /// Pixels per side of the tiles of the depth-range image.
 const TILE: usize = 8;
@@ -247,10 +277,7 @@ impl TsdfVolume {
             .zip(out.normals.par_chunks_mut(w))
             .enumerate()
             .for_each(|(r, ((depth, points), normals))| {
-                let mut sampler = Sampler {
-                    volume: self,
-                    last: None,
-                };
+                let mut sampler = Sampler::new(self);
                 for col in 0..w {
                     if let Some((hit, point)) = rays.cast(&mut sampler, col, r) {
                         depth[col] = hit;
@@ -283,10 +310,7 @@ impl TsdfVolume {
             .par_chunks_mut(intrinsics.width as usize)
             .enumerate()
             .for_each(|(r, depth)| {
-                let mut sampler = Sampler {
-                    volume: self,
-                    last: None,
-                };
+                let mut sampler = Sampler::new(self);
                 for (col, d) in depth.iter_mut().enumerate() {
                     if let Some((hit, _)) = rays.cast(&mut sampler, col, r) {
                         *d = hit;
@@ -336,9 +360,8 @@ impl<'a> Rays<'a> {
         let dir = self.pose.transform_vector(ray);
         let (start, far) = self.ranges[(row / TILE) * self.tiles_x + col / TILE];
         if let Some(d) = self.hint_depth(ray) {
-            // The map's surface should be within a few truncations of the
-            // measured one; if the ray starts behind it, start over.
-            let from = (d - 1.5 * self.truncation).max(start);
+            // If the ray starts behind the surface, start over.
+            let from = (d - HINT_BACK * self.truncation).max(start);
             if from < far {
                 if let Ok(hit) = self.march(sampler, dir, from, far) {
                     return hit;
@@ -374,6 +397,7 @@ impl<'a> Rays<'a> {
         let block_size = self.voxel * BLOCK as f32;
         let len = dir.length();
         let voxel_step = self.voxel / len;
+        let free_step = 0.8 * self.truncation / len;
         // The last sample in front of the surface.
         let mut previous: Option<(f32, f32)> = None;
         let mut first = true;
@@ -414,7 +438,7 @@ impl<'a> Rays<'a> {
                 Ok(f) => {
                     previous = Some((t, f));
                     // Far from the surface the distance allows big steps.
-                    t += (0.8 * f * self.truncation / len).max(voxel_step);
+                    t += (f * free_step).max(voxel_step);
                 }
             }
             first = false;
