@@ -53,36 +53,39 @@ impl Level {
         self.normals
             .par_chunks_mut(w)
             .enumerate()
-            .for_each(|(y, row)| {
-                for (x, n) in row.iter_mut().enumerate() {
-                    *n = normal_at(points, depth, w, h, x, y);
-                }
-            });
+            .for_each(|(y, row)| normal_row(points, depth, w, h, y, row));
     }
 }
 
-/// The normal from central differences, where the four neighbours have
-/// depth on the same surface as the pixel.
-fn normal_at(points: &[Vec3], depth: &[f32], w: usize, h: usize, x: usize, y: usize) -> Vec3 {
-    if x == 0 || y == 0 || x + 1 >= w || y + 1 >= h {
-        return Vec3::ZERO;
+/// The normals of row `y` from central differences, where the four
+/// neighbours have depth on the same surface as the pixel (zero elsewhere,
+/// and along the image border).
+fn normal_row(points: &[Vec3], depth: &[f32], w: usize, h: usize, y: usize, row: &mut [Vec3]) {
+    row.fill(Vec3::ZERO);
+    if y == 0 || y + 1 >= h || w < 3 {
+        return;
     }
-    let i = y * w + x;
-    let z = depth[i];
-    if z <= 0.0 {
-        return Vec3::ZERO;
-    }
-    let limit = EDGE_FRACTION * z;
-    for j in [i - 1, i + 1, i - w, i + w] {
-        let d = depth[j];
-        if d <= 0.0 || (d - z).abs() > limit {
-            return Vec3::ZERO;
+    // The three rows as slices: no index checks per pixel.
+    let (d_up, d_mid, d_down) = rows_around(depth, w, y);
+    let (p_up, p_mid, p_down) = rows_around(points, w, y);
+    for x in 1..w - 1 {
+        let z = d_mid[x];
+        let limit = EDGE_FRACTION * z;
+        let same = |d: f32| d > 0.0 && (d - z).abs() <= limit;
+        if z > 0.0 && same(d_mid[x - 1]) && same(d_mid[x + 1]) && same(d_up[x]) && same(d_down[x]) {
+            let dx = p_mid[x + 1] - p_mid[x - 1];
+            let dy = p_down[x] - p_up[x];
+            // Camera x right, y down, z forward: dy × dx points towards the camera.
+            row[x] = dy.cross(dx).normalize_or_zero();
         }
     }
-    let dx = points[i + 1] - points[i - 1];
-    let dy = points[i + w] - points[i - w];
-    // Camera x right, y down, z forward: dy × dx points towards the camera.
-    dy.cross(dx).normalize_or_zero()
+}
+
+/// Rows `y − 1`, `y` and `y + 1` of an image `w` pixels wide.
+fn rows_around<T>(data: &[T], w: usize, y: usize) -> (&[T], &[T], &[T]) {
+    let (up, rest) = data[(y - 1) * w..(y + 2) * w].split_at(w);
+    let (mid, down) = rest.split_at(w);
+    (up, mid, down)
 }
 
 /// Halves a depth image: each output pixel averages the valid depths of its
