@@ -49,7 +49,7 @@ impl<'a> Sampler<'a> {
     }
 
     /// The block holding voxel `v` and the voxel's index in it.
-    #[inline]
+    #[inline(always)]
     fn locate(&mut self, v: IVec3) -> Option<(&'a Block, usize)> {
         let key = v >> BLOCK_SHIFT;
         // Neighbouring blocks land in different slots.
@@ -79,6 +79,7 @@ impl<'a> Sampler<'a> {
 
     /// The distance at the voxel nearest to world point `p`: `Err(true)`
     /// when its block does not exist, `Err(false)` when it was never observed.
+    #[inline(always)]
     fn nearest(&mut self, p: Vec3) -> Result<f32, bool> {
         let (block, i) = self.locate(floor(p * self.scale + 0.5)).ok_or(true)?;
         if block.weight[i] == 0 {
@@ -89,6 +90,7 @@ impl<'a> Sampler<'a> {
 
     /// The distance (in truncation units) at world point `p`, if all eight
     /// surrounding voxels were observed.
+    #[inline(always)]
     fn sample(&mut self, p: Vec3) -> Option<f32> {
         let g = p * self.scale;
         let base = floor(g);
