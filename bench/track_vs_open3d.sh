@@ -4,7 +4,10 @@
 # dense RGB-D SLAM (frame-to-model ICP + VoxelBlockGrid), side by side on this
 # machine: frames/s of tracking plus integration, lost frames, and the
 # trajectory error against the folder's poses (no alignment, both starting
-# at the first pose).
+# at the first pose). The folder's poses are KinectFusion's own estimates, so
+# the run ends with a reference-free comparison of the three trajectories:
+# how well each registers the depth frames to each other
+# (bench/trajectory_consistency.py, lower is better).
 #
 # Usage: bench/track_vs_open3d.sh [FRAMES_END] [VOXEL]     (defaults 300, 0.01)
 # Needs ../shared beside the repository (or DEPTHMESH_SHARED).
@@ -28,3 +31,5 @@ print(f"lost     depthmesh {ours['lost_frames']} frames ({ours['lost']} events) 
 print(f"ATE      depthmesh {ate['ate_rmse_cm']:.2f} cm (aligned {ate['ate_rmse_aligned_cm']:.2f}, max {ate['max_cm']:.2f})   "
       f"Open3D {theirs_ate['ate_rmse_cm']:.2f} cm (aligned {theirs_ate['ate_rmse_aligned_cm']:.2f}, max {theirs_ate['max_cm']:.2f})")
 PY
+cp "$work/ours/trajectory.txt" "$work/depthmesh.txt"
+"$PY" bench/trajectory_consistency.py "$data" "$work/depthmesh.txt" "$work/open3d.txt" folder --frames "$end"
