@@ -45,11 +45,12 @@ pub struct TrackerConfig {
     pub convergence: f64,
     /// Predict the model view at the frame's resolution halved this many
     /// times: every level of the frame still associates with it, point to
-    /// plane, and ray casting is the largest cost of tracking. On 7-Scenes
-    /// half (1) and quarter (2) resolution track as accurately as the full
-    /// one; at a quarter, views with little structure (the end of the
-    /// simulated room's line path) lose too many matches, so the default is
-    /// half. Never below [`MIN_MODEL_WIDTH`] pixels.
+    /// plane, and ray casting is the largest cost of tracking. A frame the
+    /// view cannot align is tried again against a view at twice that
+    /// resolution (one halving fewer) before it is judged lost: views with
+    /// little structure keep more of their edges and normals there. On
+    /// 7-Scenes a quarter (2) tracks as accurately as the full resolution at
+    /// a fifth of the ray casting. Never below [`MIN_MODEL_WIDTH`] pixels.
     pub model_halvings: u32,
 }
 
@@ -65,7 +66,7 @@ impl Default for TrackerConfig {
             min_conditioning: 2e-3,
             max_jump: 0.3,
             convergence: 1e-5,
-            model_halvings: 1,
+            model_halvings: 2,
         }
     }
 }
@@ -168,6 +169,9 @@ pub struct Tracker {
     intrinsics: Intrinsics,
     /// The camera model of the model view.
     model_intrinsics: Intrinsics,
+    /// The finer model view a frame is tried against when the first cannot
+    /// align it (`None` when the model view is already the finest).
+    fallback_intrinsics: Option<Intrinsics>,
     filter: Option<Bilateral>,
     filtered: DepthImage,
     frame: Pyramid,
@@ -184,15 +188,21 @@ impl Tracker {
     pub fn new(config: TrackerConfig, intrinsics: Intrinsics, start: Pose) -> Result<Self> {
         config.validate()?;
         intrinsics.validate()?;
-        Ok(Tracker {
-            filter: config.bilateral.map(Bilateral::new).transpose()?,
-            model_intrinsics: (0..config.model_halvings).fold(intrinsics, |k, _| {
+        let halved = |times: u32| {
+            (0..times).fold(intrinsics, |k, _| {
                 if k.width / 2 >= MIN_MODEL_WIDTH {
                     half(&k)
                 } else {
                     k
                 }
-            }),
+            })
+        };
+        let model_intrinsics = halved(config.model_halvings);
+        let finer = halved(config.model_halvings.saturating_sub(1));
+        Ok(Tracker {
+            filter: config.bilateral.map(Bilateral::new).transpose()?,
+            model_intrinsics,
+            fallback_intrinsics: (finer != model_intrinsics).then_some(finer),
             config,
             intrinsics,
             filtered: DepthImage::default(),
@@ -211,8 +221,16 @@ impl Tracker {
 
     /// Aligns `depth` with what `map` predicts from the last good pose.
     pub fn track(&mut self, depth: &DepthImage, map: &dyn Mapper) -> Tracked {
+        self.prepare(depth);
         let model = map.render_depth(&self.model_intrinsics, &self.last_good);
-        self.track_against(depth, &model)
+        let mut result = self.align(&model, self.model_intrinsics);
+        if let (Some(_), Some(k)) = (result.lost, self.fallback_intrinsics) {
+            let model = map.render_depth(&k, &self.last_good);
+            let first = result.iterations;
+            result = self.align(&model, k);
+            result.iterations += first;
+        }
+        self.conclude(result)
     }
 
     /// The camera model [`Tracker::track_against`] expects the model view in.
@@ -223,7 +241,13 @@ impl Tracker {
     /// Aligns `depth` with `model`, the map's depth seen from the last good
     /// pose with [`Tracker::model_intrinsics`].
     pub fn track_against(&mut self, depth: &DepthImage, model: &DepthImage) -> Tracked {
-        let k = self.intrinsics;
+        self.prepare(depth);
+        let result = self.align(model, self.model_intrinsics);
+        self.conclude(result)
+    }
+
+    /// Filters `depth` and builds its pyramid.
+    fn prepare(&mut self, depth: &DepthImage) {
         let input = match &self.filter {
             Some(f) => {
                 f.apply(depth, &mut self.filtered);
@@ -231,8 +255,15 @@ impl Tracker {
             }
             None => depth,
         };
-        self.frame.build(input, &k, LEVELS);
-        self.model.build(model, &self.model_intrinsics, LEVELS);
+        self.frame.build(input, &self.intrinsics, LEVELS);
+    }
+
+    /// Aligns the prepared frame with `model` (seen with `model_k` from the
+    /// last good pose) and judges the result; the tracker's state is left
+    /// as it was. The returned pose is the frame's motion from the last
+    /// good pose.
+    fn align(&mut self, model: &DepthImage, model_k: Intrinsics) -> Tracked {
+        self.model.build(model, &model_k, LEVELS);
         let recovering = self.lost_streak > 0;
         // After a loss the velocity means nothing; search wider around the
         // last good pose instead.
@@ -297,10 +328,23 @@ impl Tracker {
         } else {
             None
         };
-        let pose = match lost {
+        Tracked {
+            pose: relative,
+            lost,
+            inlier_fraction,
+            rms,
+            conditioning,
+            iterations,
+        }
+    }
+
+    /// Moves the tracker on by an alignment from [`Tracker::align`]: to the
+    /// frame's pose when it was aligned, nowhere when it was lost.
+    fn conclude(&mut self, result: Tracked) -> Tracked {
+        let pose = match result.lost {
             None => {
-                let pose = self.last_good.compose(&relative);
-                self.velocity = relative;
+                let pose = self.last_good.compose(&result.pose);
+                self.velocity = result.pose;
                 self.last_good = pose;
                 self.lost_streak = 0;
                 pose
@@ -311,14 +355,7 @@ impl Tracker {
                 self.last_good
             }
         };
-        Tracked {
-            pose,
-            lost,
-            inlier_fraction,
-            rms,
-            conditioning,
-            iterations,
-        }
+        Tracked { pose, ..result }
     }
 }
 
@@ -381,6 +418,72 @@ mod tests {
             let (t, r) = pose_error(&tracked.pose, truth);
             assert!(t < 1e-3 && r < 0.1, "error {:.2} mm, {r:.3}°", t * 1e3);
         }
+    }
+
+    /// A map that is the scene itself, blind in views narrower than
+    /// `blind_below` pixels.
+    struct SceneMap<'a> {
+        scene: &'a Scene,
+        blind_below: u32,
+        mesh: crate::mesh::Mesh,
+    }
+
+    impl Mapper for SceneMap<'_> {
+        fn name(&self) -> &'static str {
+            "scene"
+        }
+        fn integrate(
+            &mut self,
+            _: &crate::image::Frame,
+            _: &Pose,
+        ) -> Result<crate::map::IntegrateReport> {
+            Ok(Default::default())
+        }
+        fn render_depth(&self, k: &Intrinsics, pose: &Pose) -> DepthImage {
+            if k.width < self.blind_below {
+                return DepthImage::new(k.width, k.height);
+            }
+            let mut sensor = SimulatedSensor::new(*k, 0.4, 6.0, NoiseModel::None, 1).unwrap();
+            sensor.capture(self.scene, 1, pose).depth
+        }
+        fn mesh(&mut self) -> &crate::mesh::Mesh {
+            &self.mesh
+        }
+        fn stats(&self) -> crate::map::MapStats {
+            Default::default()
+        }
+    }
+
+    #[test]
+    fn a_frame_the_coarse_view_cannot_align_is_tried_against_a_finer_one() {
+        let room = scene(ROOM);
+        let k = Intrinsics::from_vertical_fov(640, 480, 60.0);
+        let start = Pose::look_at(Vec3::new(2.0, 1.3, 0.0), Vec3::new(0.0, 0.4, 0.0), Vec3::Y);
+        let moved = Pose::look_at(
+            Vec3::new(2.0, 1.31, 0.02),
+            Vec3::new(0.0, 0.4, 0.03),
+            Vec3::Y,
+        );
+        let mut sensor = SimulatedSensor::new(k, 0.4, 6.0, NoiseModel::None, 1).unwrap();
+        let frame = sensor.capture(&room, 1, &moved).depth;
+        let map = |blind_below| SceneMap {
+            scene: &room,
+            blind_below,
+            mesh: Default::default(),
+        };
+        // Blind in the quarter-resolution view, sighted at half resolution.
+        let mut tracker = Tracker::new(TrackerConfig::default(), k, start).unwrap();
+        assert_eq!(tracker.model_intrinsics().width, 160);
+        let t = tracker.track(&frame, &map(320));
+        assert_eq!(t.lost, None);
+        let (dt, dr) = pose_error(&t.pose, &moved);
+        assert!(dt < 1e-3 && dr < 0.1, "error {:.2} mm, {dr:.3}°", dt * 1e3);
+        // Blind in both: lost, and the tracker stays where it was.
+        let mut tracker = Tracker::new(TrackerConfig::default(), k, start).unwrap();
+        let t = tracker.track(&frame, &map(u32::MAX));
+        assert_eq!(t.lost, Some(LostReason::EmptyModel));
+        assert_eq!(t.pose, start);
+        assert_eq!(tracker.last_good(), start);
     }
 
     #[test]
