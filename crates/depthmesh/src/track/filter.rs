@@ -180,17 +180,17 @@ impl Bilateral {
 /// `2^-x` for `x ≥ 0` to a relative error below 1e-4, branch-free (so it
 /// vectorises; `f32::exp2` is a library call): the integer part of the
 /// exponent goes into the float's exponent bits, a polynomial covers the
-/// fraction. Underflows to 0 past `x = 126`.
+/// fraction. `x` is clamped at 126 (2^-126 ≈ 1e-38).
 #[inline(always)]
 fn exp2_negative(x: f32) -> f32 {
     let x = x.min(126.0);
-    // Adding 1.5·2²³ rounds to an integer, left in the low mantissa bits.
-    const ROUND: f32 = 12_582_912.0;
+    // ROUND − x rounds −x to an integer n, left in the low mantissa bits.
+    const ROUND: f32 = 12_582_912.0; // 1.5 · 2²³
     let shifted = ROUND - x;
     let n = shifted.to_bits().wrapping_sub(ROUND.to_bits()) as i32;
-    let f = (shifted - ROUND) + x; // n − x ∈ [−0.5, 0.5]; 2^-x = 2^n · 2^-f
-    let f = -f;
-    // 2^f on [−0.5, 0.5] (minimax, degree 4).
+    // 2^-x = 2^n · 2^f with f = −x − n ∈ [−0.5, 0.5]; 2^f by its Taylor
+    // polynomial of degree 4.
+    let f = -x - (shifted - ROUND);
     let p = 1.0
         + f * (std::f32::consts::LN_2 + f * (0.240_226_5 + f * (0.055_504_1 + f * 0.009_618_1)));
     f32::from_bits((p.to_bits() as i32).wrapping_add(n << 23) as u32)

@@ -37,7 +37,7 @@ impl Level {
         self.normals.resize(w * h, Vec3::ZERO);
         let depth = &self.depth.data;
         // `Intrinsics::back_project` with the divisions hoisted; a missing
-        // depth (0) gives the zero point.
+        // depth (0, or anything not positive) gives the zero point.
         let (inv_fx, inv_fy) = (1.0 / k.fx, 1.0 / k.fy);
         self.points
             .par_chunks_mut(w)
@@ -46,6 +46,7 @@ impl Level {
             .for_each(|(y, (row, depth))| {
                 let ray_y = (y as f32 - k.cy) * inv_fy;
                 for (x, (p, &z)) in row.iter_mut().zip(depth).enumerate() {
+                    let z = z.max(0.0);
                     *p = Vec3::new((x as f32 - k.cx) * inv_fx * z, ray_y * z, z);
                 }
             });

@@ -49,8 +49,9 @@ pub struct TrackerConfig {
     /// view cannot align is tried again against a view at twice that
     /// resolution (one halving fewer) before it is judged lost: views with
     /// little structure keep more of their edges and normals there. On
-    /// 7-Scenes a quarter (2) tracks as accurately as the full resolution at
-    /// a fifth of the ray casting. Never below [`MIN_MODEL_WIDTH`] pixels.
+    /// 7-Scenes a quarter (2) tracks as accurately as half resolution (the
+    /// same frame-to-frame consistency; ATE 5.26 against 5.38 cm) in a third
+    /// of the ray-casting time. Never below [`MIN_MODEL_WIDTH`] pixels.
     pub model_halvings: u32,
 }
 
