@@ -14,6 +14,10 @@ use std::fmt;
 /// Pyramid levels; the coarsest is 1/4 of the full resolution.
 pub const LEVELS: usize = 3;
 
+/// Frames a lost camera's last motion is extrapolated over, at most (half a
+/// second at 30 Hz); beyond that it says little about where the camera is.
+const MAX_EXTRAPOLATED: usize = 15;
+
 /// The model view is not made narrower than this by
 /// [`TrackerConfig::model_halvings`]: coarser, its depth edges and missing
 /// normals cover too much of the frame.
@@ -178,7 +182,7 @@ pub struct Tracker {
     frame: Pyramid,
     model: Pyramid,
     last_good: Pose,
-    /// Motion between the last two good frames (camera-to-camera).
+    /// Motion between the last two consecutive good frames (camera-to-camera).
     velocity: Pose,
     /// Frames lost since the last good one.
     lost_streak: usize,
@@ -265,14 +269,26 @@ impl Tracker {
     /// good pose.
     fn align(&mut self, model: &DepthImage, model_k: Intrinsics) -> Tracked {
         self.model.build(model, &model_k, LEVELS);
+        if self.lost_streak == 0 {
+            return self.icp_from(self.velocity);
+        }
+        // Recovering: the camera has most likely kept moving as it did
+        // before the loss; if not, it is near the last good pose.
+        let frames = (self.lost_streak + 1).min(MAX_EXTRAPOLATED);
+        let extrapolated = (0..frames).fold(Pose::IDENTITY, |m, _| m.compose(&self.velocity));
+        let moving = self.icp_from(extrapolated);
+        if moving.lost.is_none() {
+            return moving;
+        }
+        let mut still = self.icp_from(Pose::IDENTITY);
+        still.iterations += moving.iterations;
+        still
+    }
+
+    /// Coarse-to-fine ICP of the prepared frame against the model pyramid,
+    /// from the frame motion `predicted`, and the verdict on its result.
+    fn icp_from(&self, predicted: Pose) -> Tracked {
         let recovering = self.lost_streak > 0;
-        // After a loss the velocity means nothing; search wider around the
-        // last good pose instead.
-        let predicted = if recovering {
-            Pose::IDENTITY
-        } else {
-            self.velocity
-        };
         let widen = if recovering { 2.0 } else { 1.0 };
         let assoc = Association {
             max_distance: self.config.max_distance * widen,
@@ -345,13 +361,16 @@ impl Tracker {
         let pose = match result.lost {
             None => {
                 let pose = self.last_good.compose(&result.pose);
-                self.velocity = result.pose;
+                // After a loss the motion spans several frames; the last
+                // frame-to-frame one is kept.
+                if self.lost_streak == 0 {
+                    self.velocity = result.pose;
+                }
                 self.last_good = pose;
                 self.lost_streak = 0;
                 pose
             }
             Some(_) => {
-                self.velocity = Pose::IDENTITY;
                 self.lost_streak += 1;
                 self.last_good
             }
@@ -485,6 +504,43 @@ mod tests {
         assert_eq!(t.lost, Some(LostReason::EmptyModel));
         assert_eq!(t.pose, start);
         assert_eq!(tracker.last_good(), start);
+    }
+
+    #[test]
+    fn a_camera_lost_while_moving_is_found_again_where_its_motion_led() {
+        let room = scene(ROOM);
+        let k = Intrinsics::from_vertical_fov(320, 240, 60.0);
+        // 5 cm and 1.5° a frame around the room; the map goes blind for
+        // frames 4–8, so at frame 9 the camera is 31 cm from its last good
+        // pose, beyond the widened search around it.
+        let poses: Vec<Pose> = (0..12)
+            .map(|i| {
+                let a = (i as f32 * 1.5).to_radians();
+                let eye = Vec3::new(2.0 * a.cos(), 1.3, 2.0 * a.sin());
+                Pose::look_at(eye, Vec3::new(0.0, 0.4, 0.0), Vec3::Y)
+            })
+            .collect();
+        let mut sensor = sensor(NoiseModel::None);
+        let mut tracker = Tracker::new(TrackerConfig::default(), k, poses[0]).unwrap();
+        for (i, pose) in poses.iter().enumerate().skip(1) {
+            let map = SceneMap {
+                scene: &room,
+                blind_below: if (4..9).contains(&i) { u32::MAX } else { 0 },
+                mesh: Default::default(),
+            };
+            let t = tracker.track(&sensor.capture(&room, 1, pose).depth, &map);
+            if (4..9).contains(&i) {
+                assert_eq!(t.lost, Some(LostReason::EmptyModel), "frame {i}");
+                continue;
+            }
+            assert_eq!(t.lost, None, "frame {i}");
+            let (dt, dr) = pose_error(&t.pose, pose);
+            assert!(
+                dt < 1e-3 && dr < 0.1,
+                "frame {i}: {:.2} mm, {dr:.3}°",
+                dt * 1e3
+            );
+        }
     }
 
     #[test]
