@@ -269,6 +269,21 @@ impl Tracker {
     /// good pose.
     fn align(&mut self, model: &DepthImage, model_k: Intrinsics) -> Tracked {
         self.model.build(model, &model_k, LEVELS);
+        // Nothing to align with: judged once, without running ICP.
+        if self.model.levels[0]
+            .normals
+            .iter()
+            .all(|n| *n == glam::Vec3::ZERO)
+        {
+            return Tracked {
+                pose: Pose::IDENTITY,
+                lost: Some(LostReason::EmptyModel),
+                inlier_fraction: 0.0,
+                rms: 0.0,
+                conditioning: 0.0,
+                iterations: 0,
+            };
+        }
         if self.lost_streak == 0 {
             return self.icp_from(self.velocity);
         }
@@ -328,13 +343,7 @@ impl Tracker {
         let rms = eq.rms();
         let conditioning = eq.conditioning();
         let jump = (relative.translation - predicted.translation).length();
-        let lost = if self.model.levels[0]
-            .normals
-            .iter()
-            .all(|n| *n == glam::Vec3::ZERO)
-        {
-            Some(LostReason::EmptyModel)
-        } else if inlier_fraction < self.config.min_inlier_fraction {
+        let lost = if inlier_fraction < self.config.min_inlier_fraction {
             Some(LostReason::FewInliers(inlier_fraction))
         } else if rms > self.config.max_rms {
             Some(LostReason::LargeError(rms))

@@ -140,8 +140,9 @@ fn corner_weight(f: Vec3, c: usize) -> f32 {
 /// Rays with a hint start this many truncation distances in front of the
 /// depth it measured. Starting closer saves steps but misses more of the
 /// foreground at silhouettes, where the hint saw the background: at 1.0 the
-/// 7-Scenes view renders 15 % faster, but the simulated room's ATE grows
-/// from 0.86 to 1.02 cm.
+/// half-resolution 7-Scenes view renders 15–20 % faster, but tracking the
+/// simulated room's line path (2 cm voxels, 20 frames) ends 1.02 cm from
+/// the truth instead of 0.86 cm.
 const HINT_BACK: f32 = 1.5;
 
 /// Pixels per side of the tiles of the depth-range image.
