@@ -6,14 +6,15 @@ mod demo;
 mod draw;
 mod eval;
 mod export;
-mod output;
+mod map_args;
 mod planes;
 mod progress;
 mod reconstruct;
+mod run;
 mod simplify;
 mod simulate;
+mod status;
 mod study;
-mod tracking;
 mod views;
 
 use clap::{Parser, Subcommand};
@@ -68,8 +69,43 @@ fn main() -> ExitCode {
     match result {
         Ok(()) => ExitCode::SUCCESS,
         Err(e) => {
-            eprintln!("error: {e:#}");
+            eprintln!("error: {}", name_flags(&format!("{e:#}")));
             ExitCode::FAILURE
         }
     }
+}
+
+/// Library fields and the flags that set them: the library names what it
+/// rejects by field; a person typed a flag.
+const FLAGS: &[(&str, &str)] = &[
+    ("voxel", "--voxel"),
+    ("truncation", "--trunc"),
+    ("active radius", "--active-radius"),
+    ("stride", "--stride"),
+    ("depth_min", "--depth-min"),
+    ("depth_max", "--depth-max"),
+    ("frames", "--frames"),
+    ("intrinsics", "--intrinsics"),
+    ("ratio", "--ratio"),
+    ("target_triangles", "--target-triangles"),
+    ("max_error", "--max-error"),
+    ("align_floor", "--align-floor"),
+    ("chunk_vertices", "--chunk-vertices"),
+    ("path", "--path"),
+    ("noise", "--noise"),
+    ("format", "--format"),
+    ("scale", "--scale"),
+    ("epsilon", "--epsilon"),
+    ("grid.voxel", "--plane-voxel"),
+    ("grid.cell", "--plane-cell"),
+];
+
+/// An error message with the library's "invalid FIELD:" shown as the flag
+/// that sets the field.
+fn name_flags(message: &str) -> String {
+    let mut message = message.to_string();
+    for (field, flag) in FLAGS {
+        message = message.replace(&format!("invalid {field}:"), &format!("invalid {flag}:"));
+    }
+    message
 }

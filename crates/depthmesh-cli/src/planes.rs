@@ -1,12 +1,7 @@
-//! The voxel-planes flags and summary keys shared by `simulate` and
-//! `reconstruct`.
+//! The voxel-planes flags shared by the mapping commands.
 
-use anyhow::Result;
 use clap::Args;
-use depthmesh::map::Mapper;
-use depthmesh::planes::{PlaneGridConfig, PlanesConfig, PlanesMapper};
-use depthmesh::Intrinsics;
-use serde_json::{json, Map, Value};
+use depthmesh::planes::{PlaneGridConfig, PlanesConfig};
 
 /// Flags of the voxel-planes back-end (`--map planes`).
 #[derive(Args, Debug, Clone)]
@@ -46,27 +41,4 @@ impl PlanesArgs {
             epsilon: self.epsilon,
         }
     }
-
-    /// A mapper for frames from `intrinsics`; bad flags are errors naming them.
-    pub fn mapper(&self, intrinsics: Intrinsics) -> Result<PlanesMapper> {
-        Ok(PlanesMapper::new(self.config(), intrinsics)?)
-    }
-}
-
-/// Adds the voxel-planes keys to a run's summary: `voxels` (occupied),
-/// `planar_voxels` (planar windows), `representation_bytes` (10 floats per
-/// voxel, as the paper counts) and the parameters. Meshes first, so the
-/// planar count is current.
-pub fn summarise(mapper: &mut PlanesMapper, summary: &mut Map<String, Value>) {
-    mapper.mesh();
-    let config = mapper.grid().config();
-    summary.insert("plane_voxel".into(), json!(config.voxel));
-    summary.insert("plane_cell".into(), json!(config.cell));
-    summary.insert("epsilon".into(), json!(mapper.epsilon()));
-    summary.insert("voxels".into(), json!(mapper.grid().occupied_count()));
-    summary.insert("planar_voxels".into(), json!(mapper.planar_count()));
-    summary.insert(
-        "representation_bytes".into(),
-        json!(mapper.representation_bytes()),
-    );
 }

@@ -3,24 +3,24 @@
 
 use crate::bounded::ActiveRadiusArgs;
 use crate::export::RunExportArgs;
-use crate::output::{FrameStats, RunOutput};
-use crate::planes::{self, PlanesArgs};
+use crate::planes::PlanesArgs;
 use crate::progress;
-use crate::tracking::PoseSource;
+use crate::run::{failed_to_track, print_summary, report_event};
 use crate::views::{self, Dashboard, MapperView};
-use anyhow::{bail, Result};
+use anyhow::{bail, Context, Result};
 use clap::{Args, ValueEnum};
 use depthmesh::atomic::write_atomic;
-use depthmesh::eval::fraction_within;
 use depthmesh::eval::trajectory::trajectory_error;
 use depthmesh::mabdi::classify::Threshold;
-use depthmesh::mabdi::{MabdiConfig, MabdiMapper, NaiveMapper};
-use depthmesh::map::Mapper;
+use depthmesh::mabdi::MabdiConfig;
 use depthmesh::mesh::ply::{write_ply, PlyFormat};
-use depthmesh::planes::PlanesMapper;
+use depthmesh::session::run_files::RunFiles;
+use depthmesh::session::{
+    Backend, MapConfig, PlanesSettings, Session, SessionConfig, TsdfSettings,
+};
 use depthmesh::sim::{NoiseModel, PathSpec, Scene, SceneOptions, SimulatedSensor};
+use depthmesh::track::TrackerConfig;
 use depthmesh::trajectory::format_tum;
-use depthmesh::tsdf::mapper::TsdfMapper;
 use depthmesh::tsdf::TsdfConfig;
 use depthmesh::Pose;
 use serde_json::{json, Map, Value};
@@ -103,46 +103,6 @@ pub struct SimulateArgs {
     pub bounded: ActiveRadiusArgs,
 }
 
-/// The back-ends `simulate` drives, kept concrete so the dashboard can show
-/// their internals (E, the pixel classes).
-enum SimMap {
-    Mabdi(Box<MabdiMapper>),
-    Naive(Box<NaiveMapper>),
-    Tsdf(Box<TsdfMapper>),
-    Planes(Box<PlanesMapper>),
-}
-
-impl SimMap {
-    fn mapper(&mut self) -> &mut dyn Mapper {
-        match self {
-            SimMap::Mabdi(m) => m.as_mut(),
-            SimMap::Naive(m) => m.as_mut(),
-            SimMap::Tsdf(m) => m.as_mut(),
-            SimMap::Planes(m) => m.as_mut(),
-        }
-    }
-
-    /// What the dashboard shows of the last frame, which added `new_triangles`
-    /// (dashboards show mesh addition, so only its back-ends have one).
-    fn view(&self, new_triangles: usize) -> Option<MapperView<'_>> {
-        Some(match self {
-            SimMap::Mabdi(m) => MapperView {
-                mesh: m.mesh_ref(),
-                new_triangles,
-                expected: Some(m.expected()),
-                classes: m.classes(),
-            },
-            SimMap::Naive(m) => MapperView {
-                mesh: m.mesh_ref(),
-                new_triangles,
-                expected: None,
-                classes: m.classes(),
-            },
-            SimMap::Tsdf(_) | SimMap::Planes(_) => return None,
-        })
-    }
-}
-
 /// What a finished run reports to the caller (the demo's table).
 #[derive(Debug, Clone)]
 pub struct RunSummary {
@@ -185,81 +145,51 @@ pub fn run_scene(args: &SimulateArgs, scene: &Scene, quiet: bool) -> Result<RunS
         }
     }
     args.export.check()?;
-    args.bounded
-        .check(args.map == MapKind::Tsdf, &args.export)?;
-    let poses = args.path.build(scene, args.iterations)?;
-    let mut sensor = SimulatedSensor::kinect(args.noise, args.seed);
-    let mut config = MabdiConfig::thesis(sensor.intrinsics, sensor.near, sensor.far);
-    if let Some(t) = args.threshold {
-        config.novelty = Threshold::Metres(t);
-    }
-    if args.keep_removed {
-        config.removal = None;
-    }
+    args.bounded.check(args.map == MapKind::Tsdf)?;
+    args.bounded.check_export(&args.export)?;
     if args.dashboard && matches!(args.map, MapKind::Tsdf | MapKind::Planes) {
         bail!("--dashboard shows mesh addition: use it with --map mabdi or --map naive");
     }
-    let mut map = match args.map {
-        MapKind::Mabdi => SimMap::Mabdi(Box::new(MabdiMapper::new(config)?)),
-        MapKind::Naive => SimMap::Naive(Box::new(NaiveMapper::new(config)?)),
-        MapKind::Tsdf => SimMap::Tsdf(Box::new(TsdfMapper::new(
-            TsdfConfig::new(args.voxel),
-            sensor.intrinsics,
-            sensor.near,
-            sensor.far,
-        )?)),
-        MapKind::Planes => SimMap::Planes(Box::new(args.planes.mapper(sensor.intrinsics)?)),
-    };
-    let mut out = RunOutput::create(&args.out)?;
-    let mut chunks = match &mut map {
-        SimMap::Tsdf(t) => args.bounded.start(t, &out)?,
-        _ => None,
-    };
+    let poses = args.path.build(scene, args.iterations)?;
+    let mut sensor = SimulatedSensor::kinect(args.noise, args.seed);
+    let mut session = Session::new(SessionConfig {
+        intrinsics: sensor.intrinsics,
+        map: map_config(args, &sensor),
+        tracking: args.track.then(TrackerConfig::default),
+    })?;
+    args.bounded.note_reach(&session);
+    let mut files = RunFiles::create(&args.out, &session)?;
     let mut dashboard = args
         .dashboard
         .then(|| {
             Dashboard::new(
-                map.mapper().name(),
+                session.backend().mapper().name(),
                 scene,
                 &poses,
                 sensor.intrinsics,
-                &out.path("dashboard"),
+                &files.path("dashboard"),
             )
         })
         .transpose()?;
 
     let bar = progress::bar(poses.len() as u64, scene.name.as_str(), quiet);
-    let mut sensor_ms = Vec::with_capacity(poses.len());
-    let mut tracking = PoseSource::new(args.track, sensor.intrinsics);
+    let mut sensor_seconds = 0.0;
     for (i, truth) in poses.iter().enumerate() {
         let iteration = i as u32 + 1;
         let start = Instant::now();
         let frame = sensor.capture(scene, iteration, truth);
-        let captured = start.elapsed().as_secs_f64() * 1e3;
-        let fused = tracking.fuse(&frame, Some(*truth), map.mapper(), &bar, "iteration")?;
-        if let Some(pose) = fused.pose {
-            out.trajectory.push((frame.timestamp, pose));
+        sensor_seconds += start.elapsed().as_secs_f64();
+        let outcome = session
+            .push(&frame)
+            .with_context(|| format!("iteration {iteration}"))?;
+        report_event(&bar, iteration as usize, outcome.event);
+        let new_triangles = outcome.record.report.new_elements;
+        files.after_frame(&mut session)?;
+        if let (Some(d), Some(view)) = (dashboard.as_mut(), mapper_view(&session, new_triangles)) {
+            d.draw(iteration, scene, &frame.depth, &view, session.records())?;
         }
-        let report = fused.report;
-        let ms = start.elapsed().as_secs_f64() * 1e3;
-        if let (SimMap::Tsdf(t), Some(c)) = (&mut map, &mut chunks) {
-            c.after_frame(t)?;
-        }
-        let stats = map.mapper().stats();
-        let new_triangles = report.new_elements;
-        sensor_ms.push(captured);
-        out.frames.push(FrameStats {
-            frame: iteration as usize,
-            ms,
-            report,
-            total_elements: stats.elements,
-            total_vertices: stats.vertices,
-            track: fused.track,
-        });
-        if let (Some(d), Some(view)) = (dashboard.as_mut(), map.view(new_triangles)) {
-            d.draw(iteration, scene, &frame.depth, &view, &out.frames)?;
-        }
-        bar.set_message(format!("{} elements", stats.elements));
+        let elements = session.records().last().map_or(0, |r| r.total_elements);
+        bar.set_message(format!("{elements} elements"));
         bar.inc(1);
     }
     bar.finish_and_clear();
@@ -267,94 +197,98 @@ pub fn run_scene(args: &SimulateArgs, scene: &Scene, quiet: bool) -> Result<RunS
     let last = args.iterations;
     let truth = scene.world_mesh(last).0;
     write_ply(
-        &out.path("scene.ply"),
+        &files.path("scene.ply"),
         &truth,
         PlyFormat::BinaryLittleEndian,
     )?;
     if let Some(d) = dashboard.as_ref() {
-        d.element_plot(&out.frames, &out.path("elements.png"))?;
+        d.element_plot(session.records(), &files.path("elements.png"))?;
     }
     let mut summary = Map::new();
-    if let (SimMap::Tsdf(t), Some(c)) = (&map, &mut chunks) {
-        c.summarise(t, &mut summary)?;
-    }
-    if let SimMap::Planes(p) = &mut map {
-        planes::summarise(p, &mut summary);
-    }
-    let mapper = map.mapper();
-    let stats = mapper.stats();
-    let name = mapper.name();
-    let mesh = mapper.mesh();
-    // ~1M samples at most keeps the check to about a second on any map.
-    let spacing = ((mesh.area() / 1.0e6).sqrt() as f32).max(0.002);
-    let (within, within_1cm, within_2cm) = match &chunks {
-        Some(c) => (
-            c.fraction_within(mesh, &truth, 0.005)?,
-            c.fraction_within(mesh, &truth, 0.01)?,
-            c.fraction_within(mesh, &truth, 0.02)?,
-        ),
-        None => (
-            fraction_within(mesh, &truth, 0.005, spacing),
-            fraction_within(mesh, &truth, 0.01, spacing),
-            fraction_within(mesh, &truth, 0.02, spacing),
-        ),
-    };
-    let column = |name: &str| -> f64 { out.frames.iter().filter_map(|f| f.report.get(name)).sum() };
-    let naive = column("naive_elements");
     summary.insert("scene".into(), scene.name.clone().into());
     summary.insert("iterations".into(), args.iterations.into());
     summary.insert("noise".into(), args.noise.to_string().into());
     summary.insert("seed".into(), args.seed.into());
     summary.insert("dynamic".into(), args.dynamic.into());
     summary.insert("path".into(), args.path.to_string().into());
-    tracking.summarize(&mut summary);
     if args.track {
-        // The true poses beside the estimated ones, and how far apart they are.
+        // The true poses beside the estimated ones, and how far apart they
+        // are over every frame (a lost frame counts at its last good pose).
         let truth: Vec<(f64, Pose)> = (1..).map(f64::from).zip(poses.iter().copied()).collect();
         let tum = format_tum(&truth);
-        write_atomic(&out.path("groundtruth.txt"), |w| {
+        write_atomic(&files.path("groundtruth.txt"), |w| {
             w.write_all(tum.as_bytes())
         })?;
-        let e = trajectory_error(&out.trajectory, &truth, 0.0)?;
+        let e = trajectory_error(&session.estimates(), &truth, 0.0)?;
         summary.insert("ate_rmse_cm".into(), json!(e.ate_rmse * 100.0));
         summary.insert(
             "ate_rmse_aligned_cm".into(),
             json!(e.ate_rmse_aligned * 100.0),
         );
     }
-    summary.insert("naive_elements".into(), json!(naive as u64));
-    summary.insert(
-        "elements_vs_naive".into(),
-        json!(if naive > 0.0 {
-            stats.elements as f64 / naive
-        } else {
-            0.0
-        }),
-    );
-    summary.insert(
-        "removed_elements".into(),
-        json!(out
-            .frames
-            .iter()
-            .map(|f| f.report.removed_elements)
-            .sum::<usize>()),
-    );
-    summary.insert("novel_pixels".into(), json!(column("novel_pixels") as u64));
-    summary.insert(
-        "sensor_seconds".into(),
-        json!(sensor_ms.iter().sum::<f64>() / 1e3),
-    );
+    summary.insert("sensor_seconds".into(), json!(sensor_seconds));
     // null for an empty map: there is no surface to judge.
-    summary.insert("surface_within_5mm".into(), json!(within));
-    summary.insert("surface_within_1cm".into(), json!(within_1cm));
-    summary.insert("surface_within_2cm".into(), json!(within_2cm));
-    if args.view {
-        views::write_view(scene, &poses, mesh, &out.path("view.png"))?;
+    for (key, tolerance) in [
+        ("surface_within_5mm", 0.005),
+        ("surface_within_1cm", 0.01),
+        ("surface_within_2cm", 0.02),
+    ] {
+        let within = files.fraction_within(&mut session, &truth, tolerance)?;
+        summary.insert(key.into(), json!(within));
     }
-    let summary = match &chunks {
-        Some(c) => c.finish(&out, name, mesh, stats.bytes, summary)?,
-        None => out.finish(name, mesh, stats.bytes, summary)?,
-    };
-    args.export.write(mesh, &args.out)?;
+    if args.view {
+        views::write_view(scene, &poses, session.mesh(), &files.path("view.png"))?;
+    }
+    let summary = files.finish(&mut session, summary)?;
+    args.export.write(session.mesh(), &args.out)?;
+    print_summary(&summary, &args.out, quiet);
+    if failed_to_track(&session) {
+        bail!("tracking lost the camera: nothing past the first frame was fused");
+    }
     Ok(RunSummary { summary })
+}
+
+/// The back-end the flags choose, for the simulated sensor.
+fn map_config(args: &SimulateArgs, sensor: &SimulatedSensor) -> MapConfig {
+    let mut mabdi = MabdiConfig::thesis(sensor.intrinsics, sensor.near, sensor.far);
+    if let Some(t) = args.threshold {
+        mabdi.novelty = Threshold::Metres(t);
+    }
+    if args.keep_removed {
+        mabdi.removal = None;
+    }
+    match args.map {
+        MapKind::Mabdi => MapConfig::Mabdi(mabdi),
+        MapKind::Naive => MapConfig::Naive(mabdi),
+        MapKind::Tsdf => MapConfig::Tsdf(TsdfSettings {
+            config: TsdfConfig::new(args.voxel),
+            range: (sensor.near, sensor.far),
+            remesh_every: 0,
+            active_radius: args.bounded.active_radius,
+        }),
+        MapKind::Planes => MapConfig::Planes(PlanesSettings {
+            config: args.planes.config(),
+            remesh_every: 0,
+        }),
+    }
+}
+
+/// What the dashboard shows of the last frame, which added `new_triangles`
+/// (dashboards show mesh addition, so only its back-ends have one).
+fn mapper_view(session: &Session, new_triangles: usize) -> Option<MapperView<'_>> {
+    Some(match session.backend() {
+        Backend::Mabdi(m) => MapperView {
+            mesh: m.mesh_ref(),
+            new_triangles,
+            expected: Some(m.expected()),
+            classes: m.classes(),
+        },
+        Backend::Naive(m) => MapperView {
+            mesh: m.mesh_ref(),
+            new_triangles,
+            expected: None,
+            classes: m.classes(),
+        },
+        Backend::Tsdf(_) | Backend::Planes(_) => return None,
+    })
 }

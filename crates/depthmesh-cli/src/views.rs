@@ -5,11 +5,11 @@ use crate::draw::canvas::Canvas;
 use crate::draw::colormap::{depth_colors, normal_shade, Colormap};
 use crate::draw::dashboard::{compose, DashboardPanels, PANEL_HEIGHT, PANEL_WIDTH};
 use crate::draw::plot::{LinePlot, Series};
-use crate::output::FrameStats;
 use anyhow::{Context, Result};
 use depthmesh::atomic::write_atomic;
 use depthmesh::mabdi::classify::PixelClass;
 use depthmesh::raster::{Rasterizer, RenderTarget, NO_TRIANGLE};
+use depthmesh::session::FrameRecord;
 use depthmesh::sim::Scene;
 use depthmesh::{DepthImage, Intrinsics, Mesh, Pose};
 use glam::Vec3;
@@ -86,7 +86,7 @@ impl Dashboard {
         scene: &Scene,
         depth: &DepthImage,
         map: &MapperView,
-        frames: &[FrameStats],
+        frames: &[FrameRecord],
     ) -> Result<()> {
         if scene
             .objects
@@ -142,7 +142,7 @@ impl Dashboard {
     }
 
     /// Writes the final element counts of the map against the naive method.
-    pub fn element_plot(&self, frames: &[FrameStats], path: &Path) -> Result<()> {
+    pub fn element_plot(&self, frames: &[FrameRecord], path: &Path) -> Result<()> {
         let png = element_plot(self.map, frames, self.map == "mabdi")
             .render(960, 640)
             .encode_png();
@@ -288,7 +288,7 @@ pub fn write_view(scene: &Scene, poses: &[Pose], mesh: &Mesh, path: &Path) -> Re
 
 /// The plot of map size by iteration; with `compare`, also the cumulative
 /// count of the thesis's traditional method that meshes every whole frame.
-fn element_plot(map: &str, frames: &[FrameStats], compare: bool) -> LinePlot {
+fn element_plot(map: &str, frames: &[FrameRecord], compare: bool) -> LinePlot {
     let counts: Vec<(f64, f64)> = frames
         .iter()
         .map(|f| (f.frame as f64, f.total_elements as f64))

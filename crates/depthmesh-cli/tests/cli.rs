@@ -466,12 +466,12 @@ fn bad_voxel_plane_flags_are_rejected() {
     rejects(
         "plane-cell",
         &planes(&["--plane-cell", "0.12"]),
-        &["cell size"],
+        &["invalid --plane-cell", "whole multiple"],
     );
     rejects(
         "plane-voxel",
         &planes(&["--plane-voxel", "0"]),
-        &["voxel size"],
+        &["invalid --plane-voxel", "positive size"],
     );
     rejects("epsilon", &planes(&["--epsilon=-1"]), &["epsilon"]);
     rejects(

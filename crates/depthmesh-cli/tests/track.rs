@@ -39,7 +39,7 @@ fn a_noisy_simulated_sequence_is_tracked_within_a_centimetre() {
         .lines()
         .next()
         .unwrap()
-        .ends_with(",conditioning,lost"));
+        .ends_with(",conditioning,lost,icp_iterations"));
     // The evaluation command agrees with the summary.
     let eval = depthmesh(&[
         "eval",
@@ -87,9 +87,15 @@ fn staring_at_a_flat_wall_is_reported_lost_not_fused() {
         "--out",
         out.to_str().unwrap(),
     ]);
-    ok(&run);
+    // A run that fused nothing past its first frame is a failure, with its
+    // files written so the person can see why.
+    assert!(!run.status.success());
     let stderr = String::from_utf8_lossy(&run.stderr);
     assert!(stderr.contains("frame 2: tracking lost"), "{stderr}");
+    assert!(
+        stderr.contains("nothing past the first frame was fused"),
+        "{stderr}"
+    );
     assert!(stderr.contains("six degrees of freedom"), "{stderr}");
     let s = summary(&out);
     assert_eq!(s["lost"], 1);

@@ -3,6 +3,11 @@
 use crate::error::{Error, Result};
 use glam::{Mat3, Quat, Vec2, Vec3};
 
+/// Narrowest field of view a camera model may have, along either axis.
+pub const MIN_FOV_DEGREES: f32 = 1.0;
+/// Widest field of view a pinhole model may have (a pinhole cannot see 180°).
+pub const MAX_FOV_DEGREES: f32 = 170.0;
+
 /// A pinhole camera model. Pixel `(u, v)` has its centre at integer coordinates,
 /// so a 640-wide image centred on the optical axis has `cx = 319.5`.
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -68,6 +73,30 @@ impl Intrinsics {
                 format!(
                     "focal lengths must be positive and finite (fx = {}, fy = {})",
                     self.fx, self.fy
+                ),
+            ));
+        }
+        // Finite but absurd models (fx = 1e-30 spreads every pixel over the
+        // whole world) would make fusion and ray casting run for hours.
+        for (axis, size, f) in [("x", self.width, self.fx), ("y", self.height, self.fy)] {
+            let fov = 2.0 * (0.5 * size as f32 / f).atan().to_degrees();
+            if !(MIN_FOV_DEGREES..=MAX_FOV_DEGREES).contains(&fov) {
+                return Err(Error::parameter(
+                    "intrinsics",
+                    format!(
+                        "f{axis} = {f} gives a field of view of {fov:.3}° over {size} pixels; \
+                         a depth camera's is between {MIN_FOV_DEGREES}° and {MAX_FOV_DEGREES}°"
+                    ),
+                ));
+            }
+        }
+        let inside = |c: f32, size: u32| (-0.5..=size as f32 - 0.5).contains(&c);
+        if !inside(self.cx, self.width) || !inside(self.cy, self.height) {
+            return Err(Error::parameter(
+                "intrinsics",
+                format!(
+                    "principal point ({}, {}) lies outside the {}×{} image",
+                    self.cx, self.cy, self.width, self.height
                 ),
             ));
         }

@@ -49,7 +49,7 @@ impl Format {
         let ext = path.extension().map(|e| e.to_string_lossy().into_owned());
         ext.as_deref().unwrap_or("").parse().map_err(|_| {
             Error::parameter(
-                "--format",
+                "format",
                 format!(
                     "cannot tell the format of {} from its extension; give --format glb|obj|ply",
                     path.display()
@@ -142,7 +142,7 @@ pub struct ExportReport {
 pub fn build_assets(mesh: &Mesh, options: &ExportOptions) -> Result<(Vec<Asset>, Option<Floor>)> {
     if !(options.scale.is_finite() && options.scale > 0.0) {
         return Err(Error::parameter(
-            "--scale",
+            "scale",
             format!("must be a positive number, got {}", options.scale),
         ));
     }

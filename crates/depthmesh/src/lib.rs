@@ -17,6 +17,7 @@ pub mod mesh;
 pub mod palette;
 pub mod planes;
 pub mod raster;
+pub mod session;
 pub mod sim;
 pub mod track;
 pub mod trajectory;

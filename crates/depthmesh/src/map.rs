@@ -28,8 +28,10 @@ impl IntegrateReport {
 pub struct MapStats {
     /// Elements of the map (triangles for mesh maps).
     pub elements: usize,
-    /// Vertices of the map's mesh.
-    pub vertices: usize,
+    /// Vertices of the map's mesh; `None` while the kept mesh is older than
+    /// the map (a back-end that re-meshes on demand has not been asked yet),
+    /// rather than a stale count.
+    pub vertices: Option<usize>,
     /// Bytes of memory the map representation holds.
     pub bytes: usize,
 }

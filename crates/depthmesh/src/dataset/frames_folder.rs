@@ -201,7 +201,7 @@ mod tests {
         let e = Dataset::open(dir.path(), &options).unwrap_err().to_string();
         assert_eq!(
             e,
-            "invalid --frames: 20..30 selects none of the 10 frames (numbered 0 to 9)"
+            "invalid frames: 20..30 selects none of the 10 frames (numbered 0 to 9)"
         );
     }
 
@@ -257,7 +257,7 @@ mod tests {
             .unwrap_err()
             .to_string();
         assert!(
-            e.starts_with("invalid --intrinsics: ")
+            e.starts_with("invalid intrinsics: ")
                 && e.contains("has no camera-intrinsics.txt: pass --intrinsics fx,fy,cx,cy"),
             "{e}"
         );

@@ -62,19 +62,19 @@ impl Default for DatasetOptions {
 impl DatasetOptions {
     fn validate(&self) -> Result<()> {
         if self.stride == 0 {
-            return Err(Error::parameter("--stride", "must be at least 1"));
+            return Err(Error::parameter("stride", "must be at least 1"));
         }
         if !(self.depth_min.is_finite() && self.depth_min >= 0.0) {
             return Err(Error::parameter(
-                "--depth-min",
+                "depth_min",
                 format!("{} m must be zero or more", self.depth_min),
             ));
         }
         if !(self.depth_max.is_finite() && self.depth_max > self.depth_min) {
             return Err(Error::parameter(
-                "--depth-max",
+                "depth_max",
                 format!(
-                    "{} m must be more than --depth-min ({} m)",
+                    "{} m must be more than depth_min ({} m)",
                     self.depth_max, self.depth_min
                 ),
             ));
@@ -105,7 +105,7 @@ impl FromStr for FrameRange {
 
     /// Parses `A..B`, `A..` or `..B`; errors name `--frames`.
     fn from_str(s: &str) -> Result<Self> {
-        let fail = |message: String| Error::parameter("--frames", message);
+        let fail = |message: String| Error::parameter("frames", message);
         let (a, b) = s.split_once("..").ok_or_else(|| {
             fail(format!(
                 "\"{s}\" is not a range of frame numbers A..B, A.. or ..B"
@@ -387,7 +387,7 @@ fn select(frames: Vec<FrameFiles>, options: &DatasetOptions) -> Result<Vec<Frame
         .collect();
     if selected.is_empty() {
         return Err(Error::parameter(
-            "--frames",
+            "frames",
             format!("{range} selects none of the {total} frames (numbered {first} to {last})"),
         ));
     }
@@ -408,7 +408,7 @@ fn first_image_size(frames: &[FrameFiles], skip_bad_frames: bool) -> Result<(u32
         }
     }
     Err(first_error.unwrap_or_else(|| {
-        Error::parameter("--frames", "selects no frame to take the image size from")
+        Error::parameter("frames", "selects no frame to take the image size from")
     }))
 }
 
@@ -429,7 +429,7 @@ fn choose_intrinsics(
     }
     default.ok_or_else(|| {
         Error::parameter(
-            "--intrinsics",
+            "intrinsics",
             format!(
                 "{}: pass --intrinsics fx,fy,cx,cy[,width,height] or the name of a file holding them",
                 missing()
@@ -505,7 +505,7 @@ mod tests {
         ] {
             let e = parse(s).unwrap_err().to_string();
             assert!(
-                e.starts_with("invalid --frames: ") && e.contains(expected),
+                e.starts_with("invalid frames: ") && e.contains(expected),
                 "{e}"
             );
         }
@@ -520,28 +520,28 @@ mod tests {
                     stride: 0,
                     ..DatasetOptions::default()
                 },
-                "--stride",
+                "stride",
             ),
             (
                 DatasetOptions {
                     depth_min: -1.0,
                     ..DatasetOptions::default()
                 },
-                "--depth-min",
+                "depth_min",
             ),
             (
                 DatasetOptions {
                     depth_max: 0.05,
                     ..DatasetOptions::default()
                 },
-                "--depth-max",
+                "depth_max",
             ),
             (
                 DatasetOptions {
                     depth_max: f32::NAN,
                     ..DatasetOptions::default()
                 },
-                "--depth-max",
+                "depth_max",
             ),
         ] {
             let e = Dataset::open(dir.path(), &options).unwrap_err().to_string();

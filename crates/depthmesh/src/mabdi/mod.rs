@@ -349,7 +349,7 @@ fn append_novel(
 fn mesh_stats(mesh: &Mesh) -> MapStats {
     MapStats {
         elements: mesh.triangle_count(),
-        vertices: mesh.vertex_count(),
+        vertices: Some(mesh.vertex_count()),
         bytes: mesh.positions.len() * 15 + mesh.triangles.len() * 12,
     }
 }

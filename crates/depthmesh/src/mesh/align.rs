@@ -64,7 +64,7 @@ pub fn find_floor(mesh: &Mesh) -> Result<Floor> {
         .collect();
     if points.len() < 3 {
         return Err(Error::parameter(
-            "--align-floor",
+            "align_floor",
             "the mesh has too few vertices to find a floor",
         ));
     }
@@ -259,6 +259,6 @@ mod tests {
     #[test]
     fn too_small_a_mesh_is_an_error_naming_the_flag() {
         let e = find_floor(&Mesh::default()).unwrap_err().to_string();
-        assert!(e.contains("--align-floor"), "{e}");
+        assert!(e.contains("align_floor"), "{e}");
     }
 }

@@ -29,7 +29,7 @@ pub const DEFAULT_MAX_VERTICES: usize = 65_535;
 pub fn split_by_vertices(mesh: &Mesh, max_vertices: usize) -> Result<Vec<Chunk>> {
     if max_vertices < 3 {
         return Err(Error::parameter(
-            "--chunk-vertices",
+            "chunk_vertices",
             format!("a chunk needs room for a triangle (3 vertices), got {max_vertices}"),
         ));
     }
@@ -256,7 +256,7 @@ pub(crate) mod tests {
     #[test]
     fn too_small_a_limit_names_the_flag() {
         let e = split_by_vertices(&sphere(4, 4), 0).unwrap_err().to_string();
-        assert!(e.contains("--chunk-vertices"), "{e}");
+        assert!(e.contains("chunk_vertices"), "{e}");
     }
 
     #[test]

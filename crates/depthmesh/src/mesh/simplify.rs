@@ -55,12 +55,12 @@ impl SimplifyParams {
         match self.target {
             Some(Target::Ratio(r)) if !(r > 0.0 && r <= 1.0) => {
                 return Err(Error::parameter(
-                    "--ratio",
+                    "ratio",
                     format!("must be in (0, 1], got {r}"),
                 ))
             }
             Some(Target::Triangles(0)) => {
-                return Err(Error::parameter("--target-triangles", "must be at least 1"))
+                return Err(Error::parameter("target_triangles", "must be at least 1"))
             }
             None if self.max_error.is_none() => {
                 return Err(Error::parameter(
@@ -72,7 +72,7 @@ impl SimplifyParams {
         }
         match self.max_error {
             Some(e) if !(e.is_finite() && e > 0.0) => Err(Error::parameter(
-                "--max-error",
+                "max_error",
                 format!("must be a positive number of metres, got {e}"),
             )),
             _ => Ok(()),
@@ -266,22 +266,22 @@ mod tests {
     fn bad_parameters_name_their_flag() {
         let mesh = sphere(4, 4);
         let cases = [
-            (SimplifyParams::ratio(0.0), "--ratio"),
-            (SimplifyParams::ratio(1.5), "--ratio"),
-            (SimplifyParams::ratio(f32::NAN), "--ratio"),
+            (SimplifyParams::ratio(0.0), "ratio"),
+            (SimplifyParams::ratio(1.5), "ratio"),
+            (SimplifyParams::ratio(f32::NAN), "ratio"),
             (
                 SimplifyParams {
                     target: Some(Target::Triangles(0)),
                     ..SimplifyParams::ratio(1.0)
                 },
-                "--target-triangles",
+                "target_triangles",
             ),
             (
                 SimplifyParams {
                     max_error: Some(-1.0),
                     ..SimplifyParams::ratio(0.5)
                 },
-                "--max-error",
+                "max_error",
             ),
             (
                 SimplifyParams {

@@ -44,13 +44,13 @@ impl PlaneGridConfig {
     pub fn cell_voxels(&self) -> Result<usize> {
         if !(self.voxel.is_finite() && self.voxel > 0.0) {
             return Err(Error::parameter(
-                "voxel size",
+                "grid.voxel",
                 format!("must be a positive size in metres, got {}", self.voxel),
             ));
         }
         if !(self.cell.is_finite() && self.cell > 0.0) {
             return Err(Error::parameter(
-                "cell size",
+                "grid.cell",
                 format!("must be a positive size in metres, got {}", self.cell),
             ));
         }
@@ -59,7 +59,7 @@ impl PlaneGridConfig {
         let n = ratio.round();
         if n < 1.0 || (ratio - n).abs() > 1e-5 * n {
             return Err(Error::parameter(
-                "cell size",
+                "grid.cell",
                 format!(
                     "must be a whole multiple of the voxel size {} m, got {} m",
                     self.voxel, self.cell
@@ -68,7 +68,7 @@ impl PlaneGridConfig {
         }
         if n > MAX_CELL_VOXELS as f64 {
             return Err(Error::parameter(
-                "cell size",
+                "grid.cell",
                 format!(
                     "{} m holds {n} voxels of {} m per edge, at most {MAX_CELL_VOXELS} are allowed",
                     self.cell, self.voxel

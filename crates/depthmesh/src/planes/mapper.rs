@@ -363,7 +363,7 @@ impl Mapper for PlanesMapper {
     fn stats(&self) -> MapStats {
         MapStats {
             elements: self.grid.occupied_count(),
-            vertices: self.mesh.vertex_count(),
+            vertices: self.assembled.then(|| self.mesh.vertex_count()),
             bytes: self.grid.memory_bytes()
                 + self.patches.capacity() * (std::mem::size_of::<(IVec3, Patch)>() + 1),
         }

@@ -37,7 +37,7 @@ impl FromStr for NoiseModel {
 
     /// Parses `none`, `zbuffer:SIGMA` (e.g. `zbuffer:0.002`) or `kinect`.
     fn from_str(s: &str) -> Result<Self> {
-        let bad = |message: String| Error::parameter("--noise", message);
+        let bad = |message: String| Error::parameter("noise", message);
         match s {
             "none" => Ok(NoiseModel::None),
             "kinect" => Ok(NoiseModel::Kinect),
@@ -256,7 +256,7 @@ mod tests {
             "zbuffer:inf",
         ] {
             let e = bad.parse::<NoiseModel>().unwrap_err().to_string();
-            assert!(e.contains("--noise"), "{e}");
+            assert!(e.contains("noise"), "{e}");
         }
         let e = "gauss".parse::<NoiseModel>().unwrap_err().to_string();
         assert!(e.contains("unknown noise model"), "{e}");

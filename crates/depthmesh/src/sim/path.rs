@@ -69,7 +69,7 @@ impl FromStr for PathSpec {
             _ => match s.strip_prefix("tum:") {
                 Some(file) if !file.is_empty() => Ok(PathSpec::Tum(file.into())),
                 _ => Err(Error::parameter(
-                    "--path",
+                    "path",
                     format!("\"{s}\" is not a sensor path: use helix, line or tum:FILE"),
                 )),
             },
@@ -133,7 +133,7 @@ impl PathSpec {
             .position(|p| !(p.rotation.is_finite() && p.translation.is_finite()))
         {
             return Err(Error::parameter(
-                "--path",
+                "path",
                 format!(
                     "at iteration {} the {self} path puts the camera on its target or looks straight up or down",
                     i + 1
@@ -236,7 +236,7 @@ mod tests {
         for bad in ["spiral", "tum:", "Helix", ""] {
             let e = bad.parse::<PathSpec>().unwrap_err().to_string();
             assert!(
-                e.contains("--path") && e.contains("helix, line or tum:FILE"),
+                e.contains("path") && e.contains("helix, line or tum:FILE"),
                 "{e}"
             );
         }

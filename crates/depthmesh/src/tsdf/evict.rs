@@ -55,7 +55,7 @@ impl ActiveRegion {
     pub fn new(radius: f32) -> Result<Self> {
         if !(radius.is_finite() && radius > 0.0) {
             return Err(Error::parameter(
-                "--active-radius",
+                "active radius",
                 format!("must be a positive distance in metres, got {radius}"),
             ));
         }

@@ -90,6 +90,11 @@ impl TsdfMapper {
         self.active.as_ref().map_or(0, ActiveRegion::evicted_blocks)
     }
 
+    /// The active radius, when memory is bounded.
+    pub fn active_radius(&self) -> Option<f32> {
+        self.active.as_ref().map(ActiveRegion::radius)
+    }
+
     /// Most blocks held in memory at once (after a frame's integration).
     pub fn peak_blocks(&self) -> usize {
         self.peak_blocks
@@ -201,7 +206,7 @@ impl Mapper for TsdfMapper {
     fn stats(&self) -> MapStats {
         MapStats {
             elements: self.volume.blocks().len() * super::BLOCK_VOXELS,
-            vertices: self.mesh.vertex_count(),
+            vertices: self.assembled.then(|| self.mesh.vertex_count()),
             bytes: self.volume.voxel_bytes(),
         }
     }

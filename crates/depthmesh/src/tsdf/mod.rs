@@ -58,13 +58,13 @@ impl TsdfConfig {
     pub fn validate(&self) -> Result<()> {
         if !(self.voxel.is_finite() && self.voxel > 0.0) {
             return Err(Error::parameter(
-                "--voxel",
+                "voxel",
                 format!("must be a positive size in metres, got {}", self.voxel),
             ));
         }
         if !(self.truncation.is_finite() && self.truncation >= self.voxel) {
             return Err(Error::parameter(
-                "--trunc",
+                "truncation",
                 format!(
                     "must be at least one voxel ({} m), got {}",
                     self.voxel, self.truncation

@@ -1,0 +1,97 @@
+//! The map flags shared by `reconstruct` and `serve`: which back-end, its
+//! sizes, the depth range and bounded memory, turned into the library's
+//! [`MapConfig`] once the camera is known.
+
+use crate::bounded::ActiveRadiusArgs;
+use crate::planes::PlanesArgs;
+use anyhow::{bail, Result};
+use clap::{Args, ValueEnum};
+use depthmesh::mabdi::MabdiConfig;
+use depthmesh::session::{MapConfig, PlanesSettings, TsdfSettings};
+use depthmesh::tsdf::TsdfConfig;
+use depthmesh::Intrinsics;
+
+/// The back-ends a recorded or streamed sequence can be mapped with.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, ValueEnum)]
+pub enum RealMap {
+    /// TSDF fusion with marching cubes.
+    Tsdf,
+    /// MABDI mesh addition.
+    Mabdi,
+    /// Voxel planes: per-voxel statistics, a plane patch per planar 2×2×2 window.
+    Planes,
+}
+
+/// Flags that choose and size the map.
+#[derive(Args, Debug, Clone)]
+pub struct MapArgs {
+    /// Map back-end.
+    #[arg(long, value_enum, default_value_t = RealMap::Tsdf)]
+    pub map: RealMap,
+    /// Voxel size in metres (tsdf).
+    #[arg(long, default_value_t = 0.01)]
+    pub voxel: f32,
+    /// Truncation distance in metres (tsdf; default 4 voxels).
+    #[arg(long)]
+    pub trunc: Option<f32>,
+    /// Keep colour from the colour images (tsdf; 3 more bytes per voxel).
+    #[arg(long)]
+    pub color: bool,
+    /// Nearer depths are dropped (metres).
+    #[arg(long, default_value_t = 0.1, allow_negative_numbers = true)]
+    pub depth_min: f32,
+    /// Farther depths are dropped (metres).
+    #[arg(long, default_value_t = 4.0, allow_negative_numbers = true)]
+    pub depth_max: f32,
+    #[command(flatten)]
+    pub planes: PlanesArgs,
+    /// Re-mesh the changed blocks (tsdf) or windows (planes) every N frames (0: once, at the end).
+    #[arg(long, default_value_t = 0)]
+    pub remesh_every: u32,
+    #[command(flatten)]
+    pub bounded: ActiveRadiusArgs,
+}
+
+impl MapArgs {
+    /// Rejects flags that do not go together, before any frame is read.
+    pub fn check(&self) -> Result<()> {
+        if !(self.depth_min >= 0.0 && self.depth_max > self.depth_min && self.depth_max.is_finite())
+        {
+            bail!(
+                "need 0 ≤ --depth-min < --depth-max, got {} and {}",
+                self.depth_min,
+                self.depth_max
+            );
+        }
+        if self.color && self.map != RealMap::Tsdf {
+            bail!("--color applies to --map tsdf only");
+        }
+        self.bounded.check(self.map == RealMap::Tsdf)
+    }
+
+    /// The map these flags describe, for frames from `intrinsics`.
+    pub fn config(&self, intrinsics: Intrinsics) -> MapConfig {
+        match self.map {
+            RealMap::Tsdf => {
+                let mut config = TsdfConfig::new(self.voxel);
+                if let Some(t) = self.trunc {
+                    config.truncation = t;
+                }
+                config.color = self.color;
+                MapConfig::Tsdf(TsdfSettings {
+                    config,
+                    range: (self.depth_min, self.depth_max),
+                    remesh_every: self.remesh_every,
+                    active_radius: self.bounded.active_radius,
+                })
+            }
+            // The thesis's thresholds are calibrated for a Kinect's 0.8–4 m
+            // z-buffer, whatever depth range the frames are read with.
+            RealMap::Mabdi => MapConfig::Mabdi(MabdiConfig::thesis(intrinsics, 0.8, 4.0)),
+            RealMap::Planes => MapConfig::Planes(PlanesSettings {
+                config: self.planes.config(),
+                remesh_every: self.remesh_every,
+            }),
+        }
+    }
+}

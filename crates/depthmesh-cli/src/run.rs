@@ -1,0 +1,59 @@
+//! What the mapping commands share around a [`Session`]: telling the person
+//! watching when tracking is lost or recovered, and the closing lines.
+
+use depthmesh::session::{Session, TrackEvent};
+use indicatif::ProgressBar;
+use serde_json::{Map, Value};
+use std::path::Path;
+
+/// Prints a change of tracking state of frame `frame` (the simulator's
+/// iteration) above `bar`.
+pub fn report_event(bar: &ProgressBar, frame: usize, event: Option<TrackEvent>) {
+    let line = match event {
+        None => return,
+        Some(TrackEvent::Lost(reason)) => {
+            format!("frame {frame}: tracking lost, not fused: {reason}")
+        }
+        Some(TrackEvent::Recovered { after }) => format!(
+            "frame {frame}: tracking recovered after {after} lost frame{}",
+            if after == 1 { "" } else { "s" }
+        ),
+    };
+    bar.suspend(|| eprintln!("{line}"));
+}
+
+/// The closing lines of a mapping run: frames, speed, map size, lost
+/// frames and where the files are; silent when `quiet`.
+pub fn print_summary(summary: &Map<String, Value>, out: &Path, quiet: bool) {
+    if quiet {
+        return;
+    }
+    let get = |k: &str| summary.get(k).and_then(Value::as_f64).unwrap_or(0.0);
+    let mut line = format!(
+        "{} frames ({} fused) at {:.1} frames/s: {} triangles, {} vertices",
+        get("frames"),
+        get("frames_fused"),
+        get("fps"),
+        get("triangles"),
+        get("vertices"),
+    );
+    if summary.get("tracking") == Some(&Value::Bool(true)) {
+        line += &format!(
+            "; tracking lost {} time(s), {} frame(s) not fused",
+            get("lost"),
+            get("lost_frames")
+        );
+    }
+    if let Some(ate) = summary.get("ate_rmse_cm").and_then(Value::as_f64) {
+        line += &format!("; ATE {ate:.2} cm over all frames");
+    }
+    eprintln!("{line}\nwrote {}", out.display());
+}
+
+/// Whether a tracked run fused nothing past its first frame: such a run
+/// must not end as a success.
+pub fn failed_to_track(session: &Session) -> bool {
+    session.config().tracking.is_some()
+        && session.records().len() > 1
+        && session.frames_fused() <= 1
+}

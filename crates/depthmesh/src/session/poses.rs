@@ -1,0 +1,153 @@
+//! Where each frame's pose comes from: the frame itself, or ICP against the
+//! map (only the first frame's pose is taken from the data, or the origin).
+
+use crate::camera::{Intrinsics, Pose};
+use crate::error::{Error, Result};
+use crate::image::Frame;
+use crate::map::Mapper;
+use crate::track::{LostReason, Tracked, Tracker, TrackerConfig};
+use std::time::Instant;
+
+/// The tracking columns of a frame's record.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct TrackRecord {
+    /// Milliseconds spent tracking (part of the record's `ms`).
+    pub ms: f64,
+    /// Fraction of the frame's points matched with the map.
+    pub inlier_fraction: f64,
+    /// RMS point-to-plane error of the matches in millimetres.
+    pub residual_mm: f64,
+    /// How well the view pins down all six degrees of freedom (0: not at all).
+    pub conditioning: f64,
+    /// ICP iterations run, all levels.
+    pub iterations: usize,
+    /// Why the frame was lost (and not fused), if it was.
+    pub lost: Option<LostReason>,
+}
+
+/// A change of tracking state, worth telling the person watching.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub enum TrackEvent {
+    /// The first frame of a run of lost frames.
+    Lost(LostReason),
+    /// The first good frame after `after` lost ones.
+    Recovered {
+        /// Frames lost before this one.
+        after: usize,
+    },
+}
+
+/// The pose decided for one frame.
+#[derive(Clone, Copy, Debug)]
+pub(super) struct Decided {
+    /// The pose to fuse the frame with; `None` when tracking lost it.
+    pub pose: Option<Pose>,
+    /// The best estimate of where the camera was: the fused pose, or the
+    /// last good one for a lost frame (what trajectory errors count).
+    pub estimate: Pose,
+    pub track: Option<TrackRecord>,
+    pub event: Option<TrackEvent>,
+}
+
+/// Given poses, or a tracker and its count of losses.
+#[derive(Debug)]
+pub(super) struct PoseSource {
+    intrinsics: Intrinsics,
+    /// `Some` when poses are tracked; the tracker starts at the first frame.
+    tracking: Option<(TrackerConfig, Option<Tracker>)>,
+    /// Times tracking was lost (a run of lost frames counts once).
+    pub lost: usize,
+    /// Frames not fused because tracking lost them.
+    pub lost_frames: usize,
+    /// Frames lost in the current run of losses.
+    streak: usize,
+    pub track_seconds: f64,
+    pub tracked: usize,
+}
+
+impl PoseSource {
+    /// Poses for frames from `intrinsics`; tracked with `tracking`'s settings when given.
+    pub fn new(tracking: Option<TrackerConfig>, intrinsics: Intrinsics) -> Result<Self> {
+        if let Some(config) = &tracking {
+            config.validate()?;
+        }
+        Ok(PoseSource {
+            intrinsics,
+            tracking: tracking.map(|c| (c, None)),
+            lost: 0,
+            lost_frames: 0,
+            streak: 0,
+            track_seconds: 0.0,
+            tracked: 0,
+        })
+    }
+
+    /// Whether poses are tracked.
+    pub fn tracking(&self) -> bool {
+        self.tracking.is_some()
+    }
+
+    /// The pose of `frame` against `map`, the map built so far.
+    pub fn decide(&mut self, frame: &Frame, map: &dyn Mapper) -> Result<Decided> {
+        let Some((config, tracker)) = self.tracking.as_mut() else {
+            let pose = frame.pose.ok_or_else(|| {
+                Error::parameter(
+                    format!("frame {}", frame.index),
+                    "has no pose: track poses to estimate them",
+                )
+            })?;
+            return Ok(given(pose));
+        };
+        let Some(tracker) = tracker.as_mut() else {
+            // The first frame defines the map's frame: its given pose, or the origin.
+            let start = frame.pose.unwrap_or(Pose::IDENTITY);
+            *tracker = Some(Tracker::new(config.clone(), self.intrinsics, start)?);
+            return Ok(given(start));
+        };
+        let start = Instant::now();
+        let t = tracker.track(&frame.depth, map);
+        let ms = start.elapsed().as_secs_f64() * 1e3;
+        Ok(self.judge(t, ms))
+    }
+
+    /// Counts a tracked frame and turns its outcome into a decision.
+    fn judge(&mut self, t: Tracked, ms: f64) -> Decided {
+        self.track_seconds += ms / 1e3;
+        self.tracked += 1;
+        let event = match (t.lost, self.streak) {
+            (Some(reason), 0) => Some(TrackEvent::Lost(reason)),
+            (None, n) if n > 0 => Some(TrackEvent::Recovered { after: n }),
+            _ => None,
+        };
+        if t.lost.is_some() {
+            self.lost += usize::from(self.streak == 0);
+            self.lost_frames += 1;
+            self.streak += 1;
+        } else {
+            self.streak = 0;
+        }
+        Decided {
+            pose: t.lost.is_none().then_some(t.pose),
+            estimate: t.pose,
+            track: Some(TrackRecord {
+                ms,
+                inlier_fraction: t.inlier_fraction,
+                residual_mm: t.rms * 1e3,
+                conditioning: t.conditioning,
+                iterations: t.iterations,
+                lost: t.lost,
+            }),
+            event,
+        }
+    }
+}
+
+/// A pose taken as given, untracked.
+fn given(pose: Pose) -> Decided {
+    Decided {
+        pose: Some(pose),
+        estimate: pose,
+        track: None,
+        event: None,
+    }
+}
