@@ -5,6 +5,7 @@ use crate::planes::PlanesArgs;
 use anyhow::{bail, Context, Result};
 use clap::{Args, Subcommand};
 use depthmesh::atomic::write_atomic;
+use depthmesh::codec::{Codec, Decoder, Encoder, RawDepth};
 use depthmesh::dataset::{Dataset, DatasetOptions, FrameRange};
 use depthmesh::mabdi::{MabdiConfig, MabdiMapper, NaiveMapper};
 use depthmesh::map::Mapper;
@@ -32,6 +33,22 @@ pub enum BenchCommand {
     /// recorded depth frames: from the depth images as the mapper does it,
     /// and from ready world points (`insert_points`).
     Planes(PlanesBenchArgs),
+    /// Bytes per frame, compression ratio and encode/decode times of every
+    /// depth codec on a recorded dataset's depth frames, decoded and checked lossless.
+    Codec(CodecBenchArgs),
+}
+
+/// Flags of `depthmesh bench codec`.
+#[derive(Args, Debug)]
+pub struct CodecBenchArgs {
+    /// A 7-Scenes frames folder or TUM RGB-D folder.
+    pub dataset: PathBuf,
+    /// Frame numbers to use, `A..B` (half-open).
+    #[arg(long, default_value = "0..60")]
+    pub frames: FrameRange,
+    /// Timed passes over all frames per codec; the median is reported.
+    #[arg(long, default_value_t = 3)]
+    pub repeats: u32,
 }
 
 /// Flags of `depthmesh bench planes`.
@@ -69,6 +86,7 @@ pub fn run(command: &BenchCommand) -> Result<()> {
     match command {
         BenchCommand::Mabdi(args) => mabdi(args),
         BenchCommand::Planes(args) => planes(args),
+        BenchCommand::Codec(args) => codec(args),
     }
 }
 
@@ -242,4 +260,91 @@ fn mabdi(args: &MabdiBenchArgs) -> Result<()> {
         })
     );
     Ok(())
+}
+
+fn codec(args: &CodecBenchArgs) -> Result<()> {
+    if args.repeats == 0 {
+        bail!("--repeats must be at least 1");
+    }
+    let options = DatasetOptions {
+        frames: Some(args.frames),
+        ..DatasetOptions::default()
+    };
+    let dataset = Dataset::open(&args.dataset, &options)?;
+    // Frames are read (PNG decoding) before timing.
+    let mut frames = Vec::with_capacity(dataset.len());
+    for i in 0..dataset.len() {
+        let mut raw = RawDepth::default();
+        dataset.raw_depth(i, &mut raw)?;
+        frames.push(raw);
+    }
+    let raw_bytes = frames[0].data().len() * 2;
+    let max_pixels = frames
+        .iter()
+        .map(|f| f.data().len() as u64)
+        .max()
+        .unwrap_or(0);
+    let mut results = Vec::new();
+    for codec in Codec::ALL {
+        let mut encoder = Encoder::new(codec);
+        let mut streams: Vec<Vec<u8>> = vec![Vec::new(); frames.len()];
+        let encode_ms = timed_passes(args.repeats, frames.len(), || {
+            for (frame, stream) in frames.iter().zip(&mut streams) {
+                encoder.encode(frame, stream);
+            }
+        });
+        let mut decoder = Decoder::new(codec, max_pixels);
+        let mut decoded = vec![RawDepth::default(); frames.len()];
+        let mut failure = None;
+        let decode_ms = timed_passes(args.repeats, frames.len(), || {
+            for (stream, out) in streams.iter().zip(&mut decoded) {
+                if let Err(e) = decoder.decode_into(stream, out) {
+                    failure.get_or_insert(e);
+                }
+            }
+        });
+        if let Some(e) = failure {
+            bail!("{codec} could not decode its own stream: {e}");
+        }
+        if let Some(i) = (0..frames.len()).find(|&i| decoded[i] != frames[i]) {
+            bail!(
+                "{codec} is not lossless on the {}-th frame of {}",
+                i + 1,
+                args.frames
+            );
+        }
+        let bytes = streams.iter().map(Vec::len).sum::<usize>() as f64 / frames.len() as f64;
+        results.push(json!({
+            "name": codec.name(),
+            "bytes_per_frame": bytes,
+            "ratio": raw_bytes as f64 / bytes,
+            "encode_ms": encode_ms,
+            "decode_ms": decode_ms,
+        }));
+    }
+    println!(
+        "{}",
+        json!({
+            "bench": "codec",
+            "frames": frames.len(),
+            "width": frames[0].width(),
+            "height": frames[0].height(),
+            "threads": rayon::current_num_threads(),
+            "default": Codec::default().name(),
+            "codecs": results,
+        })
+    );
+    Ok(())
+}
+
+/// The median over `repeats` passes of `pass`, in milliseconds per frame.
+fn timed_passes(repeats: u32, frames: usize, mut pass: impl FnMut()) -> f64 {
+    let seconds = (0..repeats)
+        .map(|_| {
+            let start = Instant::now();
+            pass();
+            start.elapsed().as_secs_f64()
+        })
+        .collect();
+    median(seconds) * 1e3 / frames as f64
 }

@@ -29,6 +29,14 @@ pub enum Error {
         /// Why the value is rejected.
         message: String,
     },
+    /// A compressed depth stream is truncated, corrupt or over its size limit.
+    #[error("{codec} stream: {message}")]
+    Codec {
+        /// The codec whose stream it is (`rvl`, `png`, ...).
+        codec: &'static str,
+        /// What is wrong, with the byte offset or pixel count where one is known.
+        message: String,
+    },
 }
 
 impl Error {
@@ -52,6 +60,14 @@ impl Error {
     pub fn parameter(name: impl Into<String>, message: impl Into<String>) -> Self {
         Error::Parameter {
             name: name.into(),
+            message: message.into(),
+        }
+    }
+
+    /// A bad stream of the named codec.
+    pub fn codec(codec: &'static str, message: impl Into<String>) -> Self {
+        Error::Codec {
+            codec,
             message: message.into(),
         }
     }

@@ -5,6 +5,7 @@
 
 pub mod atomic;
 pub mod camera;
+pub mod codec;
 pub mod dataset;
 pub mod error;
 pub mod eval;

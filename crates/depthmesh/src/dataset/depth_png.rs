@@ -1,5 +1,7 @@
 //! 16-bit greyscale depth PNGs, the format of both 7-Scenes (millimetres) and TUM (1/5000 m).
 
+use crate::codec::raw::check_scale;
+use crate::codec::RawDepth;
 use crate::error::{Error, Result};
 use crate::image::DepthImage;
 use std::fs::File;
@@ -13,26 +15,26 @@ use std::path::Path;
 /// pixels they could not measure, and no structured-light sensor reports 13 m or more.
 /// Errors (missing file, corrupt data, wrong bit depth or colour type) name the file.
 pub fn read_depth_png(path: &Path, units_per_metre: f32, out: &mut DepthImage) -> Result<()> {
-    if !(units_per_metre.is_finite() && units_per_metre > 0.0) {
-        return Err(Error::parameter(
-            "depth scale",
-            format!("{units_per_metre} units per metre must be positive"),
-        ));
-    }
+    let mut raw = RawDepth::default();
+    read_depth_png_raw(path, units_per_metre, &mut raw)?;
+    raw.to_metres(out);
+    Ok(())
+}
+
+/// Reads a 16-bit greyscale depth PNG into `out` as it is stored, in units of
+/// `1 / units_per_metre` metres, reusing `out`'s allocation: what a client
+/// sends losslessly. Errors as [`read_depth_png`].
+pub fn read_depth_png_raw(path: &Path, units_per_metre: f32, out: &mut RawDepth) -> Result<()> {
+    check_scale(units_per_metre)?;
     let mut reader = open(path)?;
     let (width, height) = reader.info().size();
     let mut raw = vec![0u8; reader.output_buffer_size()];
     reader
         .next_frame(&mut raw)
         .map_err(|e| decoding_error(path, e))?;
-    out.reset(width, height);
-    for (depth, be) in out.data.iter_mut().zip(raw.chunks_exact(2)) {
-        let value = u16::from_be_bytes([be[0], be[1]]);
-        *depth = if value == u16::MAX {
-            0.0
-        } else {
-            f32::from(value) / units_per_metre
-        };
+    let values = out.reset(width, height, units_per_metre);
+    for (value, be) in values.iter_mut().zip(raw.chunks_exact(2)) {
+        *value = u16::from_be_bytes([be[0], be[1]]);
     }
     Ok(())
 }

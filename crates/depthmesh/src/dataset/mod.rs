@@ -14,10 +14,11 @@ mod intrinsics;
 mod test_util;
 mod tum;
 
-pub use depth_png::read_depth_png;
+pub use depth_png::{read_depth_png, read_depth_png_raw};
 pub use intrinsics::IntrinsicsSpec;
 
 use crate::camera::{Intrinsics, Pose};
+use crate::codec::RawDepth;
 use crate::error::{Error, Result};
 use crate::image::{DepthImage, Frame};
 use std::fmt;
@@ -267,24 +268,11 @@ impl Dataset {
     /// Reads the `i`-th selected frame: depth in metres with values outside
     /// `[depth_min, depth_max]` set to 0, colour when asked for and present, the pose when known.
     pub fn frame(&self, i: usize) -> Result<Frame> {
-        let files = self.frames.get(i).ok_or_else(|| {
-            Error::parameter(
-                "frame",
-                format!("{i} is past the {} selected frames", self.frames.len()),
-            )
-        })?;
+        let files = self.files(i)?;
+        let mut raw = RawDepth::default();
+        self.raw_depth(i, &mut raw)?;
         let mut depth = DepthImage::default();
-        read_depth_png(&files.depth, self.depth_units_per_metre, &mut depth)?;
-        let k = &self.intrinsics;
-        if (depth.width, depth.height) != (k.width, k.height) {
-            return Err(Error::format(
-                &files.depth,
-                format!(
-                    "depth image is {}×{} but the camera is {}×{} (check the intrinsics)",
-                    depth.width, depth.height, k.width, k.height
-                ),
-            ));
-        }
+        raw.to_metres(&mut depth);
         depth.clamp_range(self.options.depth_min, self.options.depth_max);
         let color = match &files.color {
             Some(path) if self.options.color => Some(color::read_color(path)?),
@@ -297,6 +285,39 @@ impl Dataset {
             depth,
             color,
             pose,
+        })
+    }
+
+    /// Reads the `i`-th selected frame's depth into `out` as stored, in the
+    /// sensor's units, without the depth range applied: what a client sends
+    /// losslessly. [`RawDepth::to_metres`] then
+    /// [`DepthImage::clamp_range`]`(depth_min, depth_max)` give exactly the
+    /// depth of [`Dataset::frame`].
+    pub fn raw_depth(&self, i: usize, out: &mut RawDepth) -> Result<()> {
+        let files = self.files(i)?;
+        read_depth_png_raw(&files.depth, self.depth_units_per_metre, out)?;
+        let k = &self.intrinsics;
+        if (out.width(), out.height()) != (k.width, k.height) {
+            return Err(Error::format(
+                &files.depth,
+                format!(
+                    "depth image is {}×{} but the camera is {}×{} (check the intrinsics)",
+                    out.width(),
+                    out.height(),
+                    k.width,
+                    k.height
+                ),
+            ));
+        }
+        Ok(())
+    }
+
+    fn files(&self, i: usize) -> Result<&FrameFiles> {
+        self.frames.get(i).ok_or_else(|| {
+            Error::parameter(
+                "frame",
+                format!("{i} is past the {} selected frames", self.frames.len()),
+            )
         })
     }
 
