@@ -101,7 +101,12 @@ pub fn run(args: &DemoArgs, quiet: bool) -> Result<()> {
             export: Default::default(),
             bounded: Default::default(),
         };
-        let scene = simulate::load_scene(Path::new(e.source), Some(e.scene), &sim)?;
+        let scene = simulate::load_scene(
+            Path::new(e.source),
+            Some(e.scene),
+            sim.dynamic,
+            sim.bunny.as_deref(),
+        )?;
         let result = simulate::run_scene(&sim, &scene, quiet)?;
         rows.push((e.name, result.summary));
     }

@@ -2,6 +2,7 @@
 
 mod bench;
 mod bounded;
+mod dataset_args;
 mod demo;
 mod draw;
 mod eval;
@@ -11,9 +12,11 @@ mod planes;
 mod progress;
 mod reconstruct;
 mod run;
+mod serve;
 mod simplify;
 mod simulate;
 mod status;
+mod stream;
 mod study;
 mod views;
 
@@ -48,6 +51,10 @@ enum Command {
     /// The voxel-planes paper's study: runtime against points and
     /// cross-validation error against size, voxel planes vs TSDF + marching cubes.
     Study(study::StudyArgs),
+    /// Run the mapping service: sensor clients stream depth, each maps a session.
+    Serve(serve::ServeArgs),
+    /// Stream a recorded dataset or a simulated scene to a mapping server.
+    Stream(stream::StreamArgs),
     /// Simplify a mesh file by quadric edge collapse.
     Simplify(simplify::SimplifyArgs),
     /// Write a mesh as game-engine assets: chunked GLB, OBJ or PLY.
@@ -63,6 +70,8 @@ fn main() -> ExitCode {
         Command::Bench(command) => bench::run(&command),
         Command::Eval(command) => eval::run(&command),
         Command::Study(args) => study::run(&args, cli.quiet),
+        Command::Serve(args) => serve::run(&args),
+        Command::Stream(args) => stream::run(&args, cli.quiet),
         Command::Simplify(args) => simplify::run(&args, cli.quiet),
         Command::Export(args) => export::run(&args, cli.quiet),
     };

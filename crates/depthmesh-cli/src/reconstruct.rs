@@ -1,6 +1,7 @@
 //! `depthmesh reconstruct`: a recorded depth sequence into a map, with the
 //! data's poses or tracked ones.
 
+use crate::dataset_args::DatasetArgs;
 use crate::export::RunExportArgs;
 use crate::map_args::MapArgs;
 use crate::progress;
@@ -8,7 +9,7 @@ use crate::run::{failed_to_track, print_summary, report_event};
 use crate::status::StatusWriter;
 use anyhow::{bail, Context, Result};
 use clap::Args;
-use depthmesh::dataset::{Dataset, DatasetOptions, FrameRange, IntrinsicsSpec};
+use depthmesh::dataset::{Dataset, DatasetOptions};
 use depthmesh::session::run_files::RunFiles;
 use depthmesh::session::{Session, SessionConfig};
 use depthmesh::track::TrackerConfig;
@@ -22,15 +23,8 @@ pub struct ReconstructArgs {
     pub dataset: PathBuf,
     #[command(flatten)]
     pub map: MapArgs,
-    /// Frame numbers to use, half-open: A..B, A.. or ..B.
-    #[arg(long)]
-    pub frames: Option<FrameRange>,
-    /// Use every K-th frame.
-    #[arg(long, default_value_t = 1)]
-    pub stride: usize,
-    /// Intrinsics fx,fy,cx,cy[,width,height] or a file (3×3 K, or "w h fx fy cx cy").
-    #[arg(long)]
-    pub intrinsics: Option<String>,
+    #[command(flatten)]
+    pub frames: DatasetArgs,
     /// Write a shaded "status image" of the map seen from the camera every N frames.
     #[arg(long, default_value_t = 0)]
     pub status_every: usize,
@@ -53,22 +47,13 @@ pub fn run(args: &ReconstructArgs, quiet: bool) -> Result<()> {
     args.export.check()?;
     args.map.check()?;
     args.map.bounded.check_export(&args.export)?;
-    if args.stride == 0 {
-        bail!("--stride must be at least 1");
-    }
-    let options = DatasetOptions {
-        frames: args.frames,
-        stride: args.stride,
+    let options = args.frames.options(DatasetOptions {
         depth_min: args.map.depth_min,
         depth_max: args.map.depth_max,
-        intrinsics: args
-            .intrinsics
-            .as_deref()
-            .map(IntrinsicsSpec::from_arg)
-            .transpose()?,
         color: args.map.color,
         skip_bad_frames: args.skip_bad_frames,
-    };
+        ..DatasetOptions::default()
+    })?;
     let dataset = Dataset::open(&args.dataset, &options)?;
     if dataset.is_empty() {
         bail!("{}: no frames selected", args.dataset.display());

@@ -110,14 +110,22 @@ pub struct RunSummary {
     pub summary: Map<String, Value>,
 }
 
-/// Loads the scene named by the flags (or an embedded one via `text`).
-pub fn load_scene(path: &Path, text: Option<&str>, args: &SimulateArgs) -> Result<Scene> {
+/// Loads a scene file (or an embedded one via `text`), with objects
+/// appearing and disappearing when `dynamic`, and `bunny` for `${bunny}`.
+pub fn load_scene(
+    path: &Path,
+    text: Option<&str>,
+    dynamic: bool,
+    bunny: Option<&Path>,
+) -> Result<Scene> {
     let mut options = SceneOptions {
-        dynamic: args.dynamic,
+        dynamic,
         ..SceneOptions::default()
     };
-    if let Some(bunny) = &args.bunny {
-        options.variables.insert("bunny".into(), bunny.clone());
+    if let Some(bunny) = bunny {
+        options
+            .variables
+            .insert("bunny".into(), bunny.to_path_buf());
     }
     Ok(match text {
         Some(text) => Scene::parse(text, path, &options)?,
@@ -127,7 +135,7 @@ pub fn load_scene(path: &Path, text: Option<&str>, args: &SimulateArgs) -> Resul
 
 /// Runs `simulate` with the scene file of the flags.
 pub fn run(args: &SimulateArgs, quiet: bool) -> Result<RunSummary> {
-    let scene = load_scene(&args.scene, None, args)?;
+    let scene = load_scene(&args.scene, None, args.dynamic, args.bunny.as_deref())?;
     run_scene(args, &scene, quiet)
 }
 

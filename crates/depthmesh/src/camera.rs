@@ -10,7 +10,7 @@ pub const MAX_FOV_DEGREES: f32 = 170.0;
 
 /// A pinhole camera model. Pixel `(u, v)` has its centre at integer coordinates,
 /// so a 640-wide image centred on the optical axis has `cx = 319.5`.
-#[derive(Clone, Copy, Debug, PartialEq)]
+#[derive(Clone, Copy, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
 pub struct Intrinsics {
     /// Image width in pixels.
     pub width: u32,

@@ -3,16 +3,18 @@
 //! simplify each chunk, add coarse collision meshes, convert units and axes,
 //! and write GLB (one node per chunk), OBJ or PLY.
 
+use crate::atomic::write_atomic;
 use crate::error::{Error, Result};
 use crate::mesh::align::{find_floor, Floor};
 use crate::mesh::chunk::{split_by_vertices, DEFAULT_MAX_VERTICES};
-use crate::mesh::glb::{write_glb, GlbNode};
+use crate::mesh::glb::{glb_bytes, GlbNode};
 use crate::mesh::io::write_mesh;
 use crate::mesh::simplify::{simplify_locked, SimplifyParams};
 use crate::mesh::weld::weld;
 use crate::mesh::Mesh;
 use glam::Vec3;
 use rayon::prelude::*;
+use std::io::Write;
 use std::path::{Path, PathBuf};
 use std::str::FromStr;
 
@@ -212,26 +214,8 @@ pub fn build_assets(mesh: &Mesh, options: &ExportOptions) -> Result<(Vec<Asset>,
 /// chunk and collision mesh named `STEM_chunk_NNN[_collision].EXT` beside it.
 pub fn write_assets(path: &Path, format: Format, assets: &[Asset]) -> Result<Vec<PathBuf>> {
     if format == Format::Glb {
-        let collision_names: Vec<String> = assets
-            .iter()
-            .map(|a| a.name.replace("chunk", "collision"))
-            .collect();
-        let mut nodes: Vec<GlbNode> = assets
-            .iter()
-            .map(|a| GlbNode {
-                name: &a.name,
-                mesh: &a.mesh,
-                collision: false,
-            })
-            .collect();
-        nodes.extend(assets.iter().zip(&collision_names).filter_map(|(a, name)| {
-            a.collision.as_ref().map(|mesh| GlbNode {
-                name,
-                mesh,
-                collision: true,
-            })
-        }));
-        write_glb(path, &nodes)?;
+        let bytes = glb_of_assets(assets)?;
+        write_atomic(path, |w| w.write_all(&bytes))?;
         return Ok(vec![path.to_path_buf()]);
     }
     let single = assets.len() == 1 && assets[0].collision.is_none();
@@ -257,6 +241,31 @@ pub fn write_assets(path: &Path, format: Format, assets: &[Asset]) -> Result<Vec
         }
     }
     Ok(files)
+}
+
+/// The bytes of one GLB file holding `assets`: a node per chunk, and the
+/// collision meshes as nodes flagged `extras.collision`.
+pub fn glb_of_assets(assets: &[Asset]) -> Result<Vec<u8>> {
+    let collision_names: Vec<String> = assets
+        .iter()
+        .map(|a| a.name.replace("chunk", "collision"))
+        .collect();
+    let mut nodes: Vec<GlbNode> = assets
+        .iter()
+        .map(|a| GlbNode {
+            name: &a.name,
+            mesh: &a.mesh,
+            collision: false,
+        })
+        .collect();
+    nodes.extend(assets.iter().zip(&collision_names).filter_map(|(a, name)| {
+        a.collision.as_ref().map(|mesh| GlbNode {
+            name,
+            mesh,
+            collision: true,
+        })
+    }));
+    glb_bytes(&nodes)
 }
 
 /// Builds the assets of `mesh` and writes them to `path`.

@@ -197,6 +197,17 @@ struct Index {
     frames: Vec<FrameFiles>,
 }
 
+/// What identifies a frame besides its images.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct FrameInfo {
+    /// The frame's number, as in its file names.
+    pub index: usize,
+    /// Its timestamp in seconds (the dataset's own, or the frame number).
+    pub timestamp: f64,
+    /// Its camera-to-world pose, when the dataset has one.
+    pub pose: Option<Pose>,
+}
+
 /// An opened dataset: a sequence of selected frames read on demand.
 #[derive(Debug)]
 pub struct Dataset {
@@ -310,6 +321,17 @@ impl Dataset {
             ));
         }
         Ok(())
+    }
+
+    /// The `i`-th selected frame's number, timestamp and pose, without
+    /// reading its images (a client pairs them with [`Dataset::raw_depth`]).
+    pub fn frame_info(&self, i: usize) -> Result<FrameInfo> {
+        let files = self.files(i)?;
+        Ok(FrameInfo {
+            index: files.number,
+            timestamp: files.timestamp,
+            pose: files.pose.read()?,
+        })
     }
 
     fn files(&self, i: usize) -> Result<&FrameFiles> {

@@ -1,0 +1,36 @@
+//! The flags that select a recorded dataset's frames, shared by the
+//! commands that read one.
+
+use anyhow::Result;
+use clap::Args;
+use depthmesh::dataset::{DatasetOptions, FrameRange, IntrinsicsSpec};
+
+/// Which frames of a dataset, and its camera when the folder does not say.
+#[derive(Args, Debug, Clone)]
+pub struct DatasetArgs {
+    /// Frame numbers to use, half-open: A..B, A.. or ..B.
+    #[arg(long)]
+    pub frames: Option<FrameRange>,
+    /// Use every K-th frame.
+    #[arg(long, default_value_t = 1)]
+    pub stride: usize,
+    /// Intrinsics fx,fy,cx,cy[,width,height] or a file (3×3 K, or "w h fx fy cx cy").
+    #[arg(long)]
+    pub intrinsics: Option<String>,
+}
+
+impl DatasetArgs {
+    /// Dataset options with these flags; the rest as `base` says.
+    pub fn options(&self, base: DatasetOptions) -> Result<DatasetOptions> {
+        Ok(DatasetOptions {
+            frames: self.frames,
+            stride: self.stride,
+            intrinsics: self
+                .intrinsics
+                .as_deref()
+                .map(IntrinsicsSpec::from_arg)
+                .transpose()?,
+            ..base
+        })
+    }
+}

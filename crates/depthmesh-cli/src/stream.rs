@@ -1,0 +1,242 @@
+//! `depthmesh stream`: the sensor client. Replays a recorded dataset (or a
+//! scene through the simulated sensor) to a `depthmesh serve`, showing live
+//! figures, and writes the session's mesh, status images and its own
+//! figures into `--out`.
+
+use crate::dataset_args::DatasetArgs;
+use crate::progress;
+use crate::simulate::load_scene;
+use anyhow::{bail, Context, Result};
+use clap::Args;
+use depthmesh::atomic::write_atomic;
+use depthmesh::codec::{Codec, RawDepth};
+use depthmesh::dataset::{Dataset, DatasetOptions};
+use depthmesh::sim::{NoiseModel, PathSpec, Scene, SimulatedSensor};
+use depthmesh::{Intrinsics, Pose};
+use depthmesh_server::{FrameSource, SourceFrame, StreamOptions};
+use std::io::Write;
+use std::path::PathBuf;
+
+/// Units per metre of simulated depth on the wire: millimetres, as a
+/// Kinect reports.
+const SIMULATED_UNITS_PER_METRE: f32 = 1000.0;
+
+/// Flags of `depthmesh stream`.
+#[derive(Args, Debug, Clone)]
+pub struct StreamArgs {
+    /// A 7-Scenes frames folder or a TUM RGB-D folder (or give --scene).
+    pub dataset: Option<PathBuf>,
+    /// Stream a scene file through the simulated Kinect instead of a dataset.
+    #[arg(long, conflicts_with = "dataset")]
+    pub scene: Option<PathBuf>,
+    /// The server, http://HOST:PORT.
+    #[arg(long, default_value = "http://127.0.0.1:7878")]
+    pub server: String,
+    /// The server's token.
+    #[arg(long, env = "DEPTHMESH_TOKEN", hide_env_values = true)]
+    pub token: String,
+    /// The session's name on the server (letters, digits, '-', '_'; default: generated).
+    #[arg(long)]
+    pub session: Option<String>,
+    /// Frames per second to send at, or `max`: as fast as the server maps.
+    #[arg(long, default_value = "30")]
+    pub rate: String,
+    /// A live sensor: send at the rate whatever the server's pace; the
+    /// server maps the newest frame and drops what it cannot keep up with.
+    #[arg(long)]
+    pub realtime: bool,
+    /// Let the server estimate poses by ICP (only the first frame's pose is sent).
+    #[arg(long)]
+    pub track: bool,
+    /// Depth codec: default, levels, rvl, png or raw.
+    #[arg(long, default_value = "default")]
+    pub codec: Codec,
+    /// Ask for a status image every N mapped frames (0: never).
+    #[arg(long, default_value_t = 0)]
+    pub status_every: u32,
+    /// Write the status images received to OUT/status/.
+    #[arg(long)]
+    pub save_status: bool,
+    #[command(flatten)]
+    pub frames: DatasetArgs,
+    /// Number of sensor poses along the path (--scene).
+    #[arg(long, default_value_t = 30)]
+    pub iterations: u32,
+    /// Depth noise of the simulated sensor (--scene).
+    #[arg(long, default_value = "none")]
+    pub noise: NoiseModel,
+    /// Sensor path (--scene): helix, line or tum:FILE.
+    #[arg(long, default_value = "helix")]
+    pub path: PathSpec,
+    /// Mesh file for `${bunny}` in scene files (--scene).
+    #[arg(long)]
+    pub bunny: Option<PathBuf>,
+    /// Give up when the server says nothing for this many seconds.
+    #[arg(long, default_value_t = 60)]
+    pub timeout: u64,
+    /// Output folder: mesh.ply, summary.json, status/.
+    #[arg(long)]
+    pub out: PathBuf,
+}
+
+/// Runs `stream`.
+pub fn run(args: &StreamArgs, quiet: bool) -> Result<()> {
+    let rate = match args.rate.as_str() {
+        "max" => None,
+        r => match r.parse::<f64>() {
+            Ok(v) if v.is_finite() && v > 0.0 => Some(v),
+            _ => bail!("--rate must be frames per second or `max`, got {r}"),
+        },
+    };
+    if args.realtime && rate.is_none() {
+        bail!("--realtime sends at the sensor's rate: give --rate FPS");
+    }
+    let source = open_source(args)?;
+    std::fs::create_dir_all(&args.out)
+        .with_context(|| format!("cannot create {}", args.out.display()))?;
+    let options = StreamOptions {
+        url: args.server.clone(),
+        token: args.token.clone(),
+        session: args.session.clone(),
+        codec: args.codec,
+        rate,
+        realtime: args.realtime,
+        track: args.track,
+        status_every: args.status_every,
+        reply_timeout: std::time::Duration::from_secs(args.timeout.max(1)),
+    };
+    let bar = progress::bar(source.len() as u64, "stream", quiet);
+    let runtime = tokio::runtime::Runtime::new().context("cannot start the client's runtime")?;
+    let result = runtime
+        .block_on(depthmesh_server::stream(
+            source,
+            &options,
+            args.save_status,
+            |p| {
+                bar.set_position(p.mapped + p.dropped);
+                let s = p.seconds.max(1e-3);
+                bar.set_message(format!(
+                    "{:.1} fps, up {:.0} kB/s, down {:.0} kB/s, tracking {}",
+                    p.mapped as f64 / s,
+                    p.upload_bytes as f64 / s / 1e3,
+                    p.download_bytes as f64 / s / 1e3,
+                    if p.tracking_lost { "LOST" } else { "ok" }
+                ));
+            },
+        ))
+        .map_err(anyhow::Error::msg)?;
+    bar.finish_and_clear();
+    write_atomic(&args.out.join("mesh.ply"), |w| {
+        w.write_all(&result.mesh_ply)
+    })?;
+    if args.save_status {
+        let dir = args.out.join("status");
+        std::fs::create_dir_all(&dir)
+            .with_context(|| format!("cannot create {}", dir.display()))?;
+        for (frame, jpeg) in &result.status {
+            write_atomic(&dir.join(format!("frame-{frame:06}.jpg")), |w| {
+                w.write_all(jpeg)
+            })?;
+        }
+    }
+    let text = serde_json::to_string_pretty(&result.summary)?;
+    write_atomic(&args.out.join("summary.json"), |w| writeln!(w, "{text}"))?;
+    if !quiet {
+        let s = &result.summary;
+        eprintln!(
+            "{} frames sent, {} mapped, {} dropped, {} lost; {} triangles; latency p50 {} ms; wrote {}",
+            s["frames_sent"], s["frames_mapped"], s["frames_dropped"], s["frames_lost"],
+            s["triangles"], s["latency_ms_p50"], args.out.display()
+        );
+    }
+    Ok(())
+}
+
+/// The frames the flags name: a dataset, or a scene through the simulator.
+fn open_source(args: &StreamArgs) -> Result<Box<dyn FrameSource>> {
+    match (&args.dataset, &args.scene) {
+        (Some(path), None) => {
+            let options = args.frames.options(DatasetOptions::default())?;
+            let dataset = Dataset::open(path, &options)?;
+            if dataset.is_empty() {
+                bail!("{}: no frames selected", path.display());
+            }
+            Ok(Box::new(DatasetSource { dataset, next: 0 }))
+        }
+        (None, Some(scene)) => {
+            let scene = load_scene(scene, None, false, args.bunny.as_deref())?;
+            let poses = args.path.build(&scene, args.iterations)?;
+            Ok(Box::new(SceneSource {
+                sensor: SimulatedSensor::kinect(args.noise, 0),
+                scene,
+                poses,
+                next: 0,
+            }))
+        }
+        _ => bail!("give a DATASET folder or --scene FILE"),
+    }
+}
+
+/// A recorded dataset's frames, depth as stored.
+struct DatasetSource {
+    dataset: Dataset,
+    next: usize,
+}
+
+impl FrameSource for DatasetSource {
+    fn intrinsics(&self) -> Intrinsics {
+        self.dataset.intrinsics()
+    }
+
+    fn len(&self) -> usize {
+        self.dataset.len()
+    }
+
+    fn next_frame(&mut self, raw: &mut RawDepth) -> Option<Result<SourceFrame, String>> {
+        let i = self.next;
+        if i >= self.dataset.len() {
+            return None;
+        }
+        self.next += 1;
+        let frame = self.dataset.frame_info(i).and_then(|info| {
+            self.dataset.raw_depth(i, raw)?;
+            Ok(SourceFrame {
+                index: info.index as u64,
+                timestamp: info.timestamp,
+                pose: info.pose,
+            })
+        });
+        Some(frame.map_err(|e| e.to_string()))
+    }
+}
+
+/// The simulated Kinect following a path through a scene.
+struct SceneSource {
+    sensor: SimulatedSensor,
+    scene: Scene,
+    poses: Vec<Pose>,
+    next: usize,
+}
+
+impl FrameSource for SceneSource {
+    fn intrinsics(&self) -> Intrinsics {
+        self.sensor.intrinsics
+    }
+
+    fn len(&self) -> usize {
+        self.poses.len()
+    }
+
+    fn next_frame(&mut self, raw: &mut RawDepth) -> Option<Result<SourceFrame, String>> {
+        let pose = *self.poses.get(self.next)?;
+        self.next += 1;
+        let iteration = self.next as u32;
+        let frame = self.sensor.capture(&self.scene, iteration, &pose);
+        let done = raw.set_from_metres(&frame.depth, SIMULATED_UNITS_PER_METRE);
+        Some(done.map_err(|e| e.to_string()).map(|()| SourceFrame {
+            index: u64::from(iteration),
+            timestamp: frame.timestamp,
+            pose: Some(pose),
+        }))
+    }
+}

@@ -1,0 +1,260 @@
+//! The thread that maps one session: it owns the library [`Session`],
+//! decodes frames, fuses them (on rayon, never on the async executor), and
+//! sends verdicts and status images back; at the end it writes the run's
+//! files into `OUT/<session>/`.
+
+use crate::protocol::{pose_to_array, tagged, FrameMessage, Verdict, STATUS_MAGIC};
+use depthmesh::codec::{Decoder, RawDepth};
+use depthmesh::mesh::Mesh;
+use depthmesh::session::run_files::RunFiles;
+use depthmesh::session::status::StatusImage;
+use depthmesh::session::{FrameRecord, Session};
+use depthmesh::{DepthImage, Frame, Intrinsics, Pose};
+use serde_json::{Map, Value};
+use std::collections::VecDeque;
+use std::sync::{Arc, Condvar, Mutex};
+use tokio::sync::{mpsc, oneshot};
+
+/// JPEG quality of status images: grey shading survives it well at a tenth
+/// of the PNG's size.
+const STATUS_QUALITY: u8 = 80;
+
+/// Work for a session's thread.
+#[derive(Debug)]
+pub enum Job {
+    /// Map this frame.
+    Frame(FrameMessage),
+    /// Send a copy of the current mesh.
+    Mesh(oneshot::Sender<Mesh>),
+    /// No more frames: write the run's files and stop.
+    End,
+}
+
+/// What a session's thread sends back to its connection.
+#[derive(Debug)]
+pub enum Out {
+    /// A frame's verdict.
+    Verdict(Verdict),
+    /// A binary message (status image, mesh).
+    Binary(Vec<u8>),
+    /// The session ended and its files are written.
+    Finished(Map<String, Value>),
+    /// A frame could not be mapped; the session ended (its files are
+    /// written with what was mapped before).
+    Fatal(String),
+}
+
+/// The queue between a connection and its session's thread. For a
+/// recording, frames wait their turn (the client's window bounds them);
+/// for a live sensor, a frame still waiting when a newer one arrives is
+/// dropped, so the map follows the newest view.
+#[derive(Debug, Default)]
+pub struct Inbox {
+    queue: Mutex<VecDeque<Job>>,
+    ready: Condvar,
+}
+
+impl Inbox {
+    /// Queues `job`; with `newest_only`, a frame waiting unmapped is
+    /// replaced and its index returned.
+    pub fn push(&self, job: Job, newest_only: bool) -> Option<u64> {
+        let mut queue = self.queue.lock().expect("inbox lock");
+        let mut dropped = None;
+        if newest_only && matches!(job, Job::Frame(_)) {
+            if let Some(i) = queue.iter().position(|j| matches!(j, Job::Frame(_))) {
+                if let Some(Job::Frame(old)) = queue.remove(i) {
+                    dropped = Some(old.index);
+                }
+            }
+        }
+        queue.push_back(job);
+        self.ready.notify_one();
+        dropped
+    }
+
+    /// Frames waiting.
+    pub fn waiting_frames(&self) -> usize {
+        let queue = self.queue.lock().expect("inbox lock");
+        queue.iter().filter(|j| matches!(j, Job::Frame(_))).count()
+    }
+
+    fn pop(&self) -> Job {
+        let mut queue = self.queue.lock().expect("inbox lock");
+        loop {
+            if let Some(job) = queue.pop_front() {
+                return job;
+            }
+            queue = self.ready.wait(queue).expect("inbox lock");
+        }
+    }
+}
+
+/// Figures of a live session, shared with the listing.
+#[derive(Clone, Debug, Default, PartialEq)]
+pub struct Progress {
+    /// Frames mapped (fused or lost).
+    pub frames: u64,
+    /// Map elements.
+    pub elements: u64,
+}
+
+/// Everything a session's thread needs.
+pub struct Worker {
+    /// The session.
+    pub session: Session,
+    /// Its files (`OUT/<session>/`); chunk files are written as blocks are evicted.
+    pub files: RunFiles,
+    /// Depth outside this range (metres) is dropped, as the dataset readers do.
+    pub depth_range: (f32, f32),
+    /// Largest image a frame may decode to.
+    pub max_pixels: u64,
+    /// A status image every this many mapped frames (0: never).
+    pub status_every: u32,
+    /// Figures for the listing.
+    pub progress: Arc<Mutex<Progress>>,
+}
+
+impl Worker {
+    /// Runs until [`Job::End`] (or the connection is gone), then writes the
+    /// run's files.
+    pub fn run(mut self, inbox: Arc<Inbox>, out: mpsc::UnboundedSender<Out>) {
+        let k = self.session.config().intrinsics;
+        let mut buffers = Buffers {
+            decoders: Vec::new(),
+            raw: RawDepth::default(),
+            depth: DepthImage::default(),
+            status: StatusImage::default(),
+            jpeg: Vec::new(),
+        };
+        let mut mapped = 0u32;
+        let mut fatal = None;
+        loop {
+            match inbox.pop() {
+                Job::Frame(frame) => match self.map(frame, &k, &mut buffers) {
+                    Ok((verdict, pose)) => {
+                        mapped += 1;
+                        let index = verdict.frame;
+                        let _ = out.send(Out::Verdict(verdict));
+                        let due = self.status_every > 0 && mapped.is_multiple_of(self.status_every);
+                        if let (true, Some(pose)) = (due, pose) {
+                            buffers.status.draw(self.session.backend(), &k, &pose);
+                            if let Some(jpeg) = encode_jpeg(&buffers.status, &mut buffers.jpeg) {
+                                let _ = out.send(Out::Binary(tagged(STATUS_MAGIC, index, jpeg)));
+                            }
+                        }
+                    }
+                    Err(message) => {
+                        fatal = Some(message);
+                        break;
+                    }
+                },
+                Job::Mesh(reply) => {
+                    let _ = reply.send(self.session.mesh().clone());
+                }
+                Job::End => break,
+            }
+        }
+        let finished = self.finish();
+        let _ = out.send(match (fatal, finished) {
+            (Some(m), _) => Out::Fatal(m),
+            (None, Ok(summary)) => Out::Finished(summary),
+            (None, Err(m)) => Out::Fatal(m),
+        });
+    }
+
+    /// Decodes and maps one frame; an error ends the session.
+    fn map(
+        &mut self,
+        msg: FrameMessage,
+        k: &Intrinsics,
+        b: &mut Buffers,
+    ) -> Result<(Verdict, Option<Pose>), String> {
+        let decoder = match b.decoders.iter_mut().find(|(c, _)| *c == msg.codec) {
+            Some((_, d)) => d,
+            None => {
+                b.decoders
+                    .push((msg.codec, Decoder::new(msg.codec, self.max_pixels)));
+                &mut b.decoders.last_mut().expect("just pushed").1
+            }
+        };
+        decoder
+            .decode_into(&msg.payload, &mut b.raw)
+            .map_err(|e| format!("frame {}: {e}", msg.index))?;
+        if (b.raw.width(), b.raw.height()) != (k.width, k.height) {
+            return Err(format!(
+                "frame {}: depth image is {}×{} but the intrinsics say {}×{}",
+                msg.index,
+                b.raw.width(),
+                b.raw.height(),
+                k.width,
+                k.height
+            ));
+        }
+        b.raw.to_metres(&mut b.depth);
+        b.depth.clamp_range(self.depth_range.0, self.depth_range.1);
+        let frame = Frame {
+            index: usize::try_from(msg.index).map_err(|_| "frame index too large".to_string())?,
+            timestamp: msg.timestamp,
+            depth: std::mem::take(&mut b.depth),
+            color: None,
+            pose: msg.pose,
+        };
+        let result = self.session.push(&frame);
+        b.depth = frame.depth;
+        let outcome = result.map_err(|e| e.to_string())?;
+        let (verdict, pose) = verdict(msg.index, outcome.record);
+        self.files
+            .after_frame(&mut self.session)
+            .map_err(|e| format!("frame {}: {e}", msg.index))?;
+        let mut p = self.progress.lock().expect("progress lock");
+        p.frames += 1;
+        p.elements = verdict.elements;
+        Ok((verdict, pose))
+    }
+
+    /// Writes the run's files; the summary, or why they could not be written.
+    fn finish(&mut self) -> Result<Map<String, Value>, String> {
+        if self.session.records().is_empty() {
+            return Err("the session ended before any frame was mapped".into());
+        }
+        self.files
+            .finish(&mut self.session, Map::new())
+            .map_err(|e| format!("cannot write the session's files: {e}"))
+    }
+}
+
+/// The verdict on frame `index`, and the pose it was fused with.
+fn verdict(index: u64, r: &FrameRecord) -> (Verdict, Option<Pose>) {
+    let verdict = Verdict {
+        frame: index,
+        pose: r.pose.as_ref().map(pose_to_array),
+        lost: r.track.and_then(|t| t.lost).map(|l| l.to_string()),
+        dropped: false,
+        ms: r.ms,
+        elements: r.total_elements as u64,
+    };
+    (verdict, r.pose)
+}
+
+/// A session thread's reused buffers.
+struct Buffers {
+    decoders: Vec<(depthmesh::codec::Codec, Decoder)>,
+    raw: RawDepth,
+    depth: DepthImage,
+    status: StatusImage,
+    jpeg: Vec<u8>,
+}
+
+/// The status image as a greyscale JPEG in `out`; `None` if it cannot be
+/// encoded (an image larger than JPEG's 65,535 pixels a side).
+fn encode_jpeg<'a>(image: &StatusImage, out: &'a mut Vec<u8>) -> Option<&'a [u8]> {
+    out.clear();
+    let (w, h) = (
+        u16::try_from(image.width).ok()?,
+        u16::try_from(image.height).ok()?,
+    );
+    jpeg_encoder::Encoder::new(&mut *out, STATUS_QUALITY)
+        .encode(&image.pixels, w, h, jpeg_encoder::ColorType::Luma)
+        .ok()?;
+    Some(out)
+}
