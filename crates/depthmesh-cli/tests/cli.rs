@@ -4,7 +4,7 @@
 use std::path::Path;
 
 mod common;
-use common::{assert_fails_with, depthmesh, ok, scratch, summary};
+use common::{assert_fails_with, depthmesh, ok, scratch, simulated_frames_folder, summary};
 
 const TABLE: &str = "../../scenes/table.toml";
 
@@ -271,56 +271,10 @@ fn a_run_that_fails_while_writing_leaves_no_summary_and_no_temporary_files() {
     std::fs::remove_dir_all(out).unwrap();
 }
 
-/// A 7-Scenes style frames folder of the simulated table, 160×120, 3 frames.
-fn simulated_frames_folder(dir: &Path) {
-    use depthmesh::sim::{NoiseModel, PathSpec, Scene, SceneOptions, SimulatedSensor};
-    let scene = Scene::load(Path::new(TABLE), &SceneOptions::default()).unwrap();
-    let k = depthmesh::Intrinsics::from_vertical_fov(160, 120, 60.0);
-    let mut sensor = SimulatedSensor::new(k, 0.8, 4.0, NoiseModel::None, 0).unwrap();
-    std::fs::write(
-        dir.join("camera-intrinsics.txt"),
-        format!("{} 0 {}\n0 {} {}\n0 0 1\n", k.fx, k.cx, k.fy, k.cy),
-    )
-    .unwrap();
-    for (i, pose) in PathSpec::Helix.build(&scene, 3).unwrap().iter().enumerate() {
-        let frame = sensor.capture(&scene, i as u32 + 1, pose);
-        let mm: Vec<u8> = frame
-            .depth
-            .data
-            .iter()
-            .flat_map(|d| ((d * 1000.0).round() as u16).to_be_bytes())
-            .collect();
-        let file = std::fs::File::create(dir.join(format!("frame-{i:06}.depth.png"))).unwrap();
-        let mut encoder = png::Encoder::new(file, k.width, k.height);
-        encoder.set_color(png::ColorType::Grayscale);
-        encoder.set_depth(png::BitDepth::Sixteen);
-        encoder
-            .write_header()
-            .unwrap()
-            .write_image_data(&mm)
-            .unwrap();
-        let r = pose.rotation;
-        let t = pose.translation;
-        let rows: Vec<String> = (0..3)
-            .map(|row| {
-                format!(
-                    "{} {} {} {}",
-                    r.col(0)[row],
-                    r.col(1)[row],
-                    r.col(2)[row],
-                    t[row]
-                )
-            })
-            .chain(std::iter::once("0 0 0 1".to_string()))
-            .collect();
-        std::fs::write(dir.join(format!("frame-{i:06}.pose.txt")), rows.join("\n")).unwrap();
-    }
-}
-
 #[test]
 fn reconstruct_fuses_a_frames_folder() {
     let dir = scratch("frames");
-    simulated_frames_folder(&dir);
+    simulated_frames_folder(&dir, 3);
     let out = dir.join("out");
     let args = [
         "reconstruct",
@@ -414,7 +368,7 @@ fn voxel_planes_follow_the_run_contract() {
         "coloured by normal"
     );
 
-    simulated_frames_folder(&dir);
+    simulated_frames_folder(&dir, 3);
     let real = dir.join("real");
     let result = depthmesh(&[
         "reconstruct",

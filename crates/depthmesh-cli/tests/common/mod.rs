@@ -1,7 +1,7 @@
 //! Helpers shared by the command-line tests: run the binary, a scratch
 //! folder per test, and the checks every failure must pass.
 
-use std::path::PathBuf;
+use std::path::{Path, PathBuf};
 use std::process::{Command, Output};
 
 /// Runs `depthmesh` with `args` from the CLI crate's folder.
@@ -47,5 +47,62 @@ pub fn assert_fails_with(output: &Output, needles: &[&str]) {
     assert!(!stderr.contains("panicked"), "panic: {stderr}");
     for n in needles {
         assert!(stderr.contains(n), "stderr lacks {n:?}: {stderr}");
+    }
+}
+
+/// A 7-Scenes style frames folder of the simulated table, 160×120,
+/// `frames` frames along the helix.
+#[allow(dead_code)] // not every test file needs it
+pub fn simulated_frames_folder(dir: &Path, frames: u32) {
+    use depthmesh::sim::{NoiseModel, PathSpec, Scene, SceneOptions, SimulatedSensor};
+    let scene = Scene::load(
+        Path::new("../../scenes/table.toml"),
+        &SceneOptions::default(),
+    )
+    .unwrap();
+    let k = depthmesh::Intrinsics::from_vertical_fov(160, 120, 60.0);
+    let mut sensor = SimulatedSensor::new(k, 0.8, 4.0, NoiseModel::None, 0).unwrap();
+    std::fs::write(
+        dir.join("camera-intrinsics.txt"),
+        format!("{} 0 {}\n0 {} {}\n0 0 1\n", k.fx, k.cx, k.fy, k.cy),
+    )
+    .unwrap();
+    for (i, pose) in PathSpec::Helix
+        .build(&scene, frames)
+        .unwrap()
+        .iter()
+        .enumerate()
+    {
+        let frame = sensor.capture(&scene, i as u32 + 1, pose);
+        let mm: Vec<u8> = frame
+            .depth
+            .data
+            .iter()
+            .flat_map(|d| ((d * 1000.0).round() as u16).to_be_bytes())
+            .collect();
+        let file = std::fs::File::create(dir.join(format!("frame-{i:06}.depth.png"))).unwrap();
+        let mut encoder = png::Encoder::new(file, k.width, k.height);
+        encoder.set_color(png::ColorType::Grayscale);
+        encoder.set_depth(png::BitDepth::Sixteen);
+        encoder
+            .write_header()
+            .unwrap()
+            .write_image_data(&mm)
+            .unwrap();
+        let r = pose.rotation;
+        let t = pose.translation;
+        let rows: Vec<String> = (0..3)
+            .map(|row| {
+                format!(
+                    "{} {} {} {}",
+                    r.col(0)[row],
+                    r.col(1)[row],
+                    r.col(2)[row],
+                    t[row]
+                )
+            })
+            .chain(std::iter::once("0 0 0 1".to_string()))
+            .collect();
+        std::fs::write(dir.join(format!("frame-{i:06}.pose.txt")), rows.join("\n")).unwrap();
     }
 }
