@@ -21,8 +21,10 @@ fn noisy_table_scan_is_within_a_centimetre() {
     }
     let truth = scene.world_mesh(20).0;
     let within = fraction_within(mapper.mesh(), &truth, 0.01, 0.01).unwrap();
+    // Measured 99.2 % at this resolution (99.7 % at 640×480 in the README):
+    // the bound lets the share beyond 1 cm grow by half, and no more.
     assert!(
-        within >= 0.95,
+        within >= 0.988,
         "{:.1}% of the mesh within 1 cm",
         within * 100.0
     );
