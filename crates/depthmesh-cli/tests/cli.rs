@@ -1,6 +1,8 @@
 //! The command line end to end: the run contract, and clear errors with no
 //! output for bad input.
 
+use depthmesh::mesh::io::read_mesh;
+use depthmesh::Mesh;
 use std::path::Path;
 
 mod common;
@@ -225,9 +227,37 @@ fn bounded_tsdf_run_writes_chunks_whose_union_is_the_mesh() {
     assert_eq!(chunks.len() as u64, count("chunks"));
     let mesh = depthmesh::mesh::io::read_mesh(&out.join("mesh.ply")).unwrap();
     assert_eq!(mesh.triangle_count() as u64, count("triangles"));
-    let first = depthmesh::mesh::io::read_mesh(&out.join("chunks/chunk-000001.ply")).unwrap();
-    assert!(first.triangle_count() > 0 && first.triangle_count() < mesh.triangle_count());
+    // mesh.ply is the chunks in order, then the blocks still in memory.
+    let mut start = 0;
+    for n in 1..=count("chunks") {
+        let chunk = read_mesh(&out.join(format!("chunks/chunk-{n:06}.ply"))).unwrap();
+        assert!(chunk.triangle_count() > 0, "chunk {n} is empty");
+        assert!(chunk.vertex_count() <= 65_535, "chunk {n} is too large");
+        let end = start + chunk.triangle_count();
+        assert!(
+            triangles(&chunk) == triangles(&mesh)[start..end],
+            "chunk {n} is not mesh.ply's triangles {start}..{end}"
+        );
+        start = end;
+    }
+    // The rest are the blocks still in memory at the end (this radius is
+    // shorter than the sensor's reach, so unlike `tsdf_bounded.rs` the
+    // union is not compared with an unbounded run).
+    assert!(start < mesh.triangle_count(), "nothing left in memory");
     std::fs::remove_dir_all(out).unwrap();
+}
+
+/// Each triangle of `mesh` as the bits of its corners' positions, starting
+/// at its smallest corner (the winding kept): comparable across files that
+/// number their vertices differently.
+fn triangles(mesh: &Mesh) -> Vec<[[u32; 3]; 3]> {
+    (0..mesh.triangle_count())
+        .map(|t| {
+            let c = mesh.corners(t).map(|p| p.to_array().map(f32::to_bits));
+            let first = (0..3).min_by_key(|&i| c[i]).unwrap();
+            [c[first], c[(first + 1) % 3], c[(first + 2) % 3]]
+        })
+        .collect()
 }
 
 #[test]
@@ -271,10 +301,16 @@ fn a_run_that_fails_while_writing_leaves_no_summary_and_no_temporary_files() {
     std::fs::remove_dir_all(out).unwrap();
 }
 
+/// The table scene the tests simulate.
+fn table_scene() -> depthmesh::sim::Scene {
+    let options = depthmesh::sim::SceneOptions::default();
+    depthmesh::sim::Scene::load(Path::new(TABLE), &options).unwrap()
+}
+
 /// A 7-Scenes style frames folder of the simulated table, 160×120, 3 frames.
 fn simulated_frames_folder(dir: &Path) {
-    use depthmesh::sim::{NoiseModel, PathSpec, Scene, SceneOptions, SimulatedSensor};
-    let scene = Scene::load(Path::new(TABLE), &SceneOptions::default()).unwrap();
+    use depthmesh::sim::{NoiseModel, PathSpec, SimulatedSensor};
+    let scene = table_scene();
     let k = depthmesh::Intrinsics::from_vertical_fov(160, 120, 60.0);
     let mut sensor = SimulatedSensor::new(k, 0.8, 4.0, NoiseModel::None, 0).unwrap();
     std::fs::write(
@@ -353,7 +389,20 @@ fn reconstruct_fuses_a_frames_folder() {
     }
     assert_eq!(summary["map"], "tsdf");
     assert_eq!(summary["bytes_per_voxel"], 4.0);
-    assert!(summary["triangles"].as_u64().unwrap() > 1000);
+    // The mesh is where the scene is: with a pose read the wrong way round
+    // (world-to-camera, or transposed) the frames would not even agree with
+    // each other. Noise-free 1 mm depth at 2 cm voxels: measured 99.2 %
+    // within 1 cm (half a voxel); the bound lets the share beyond it grow
+    // by two fifths.
+    let mesh = read_mesh(&out.join("mesh.ply")).unwrap();
+    assert!(mesh.triangle_count() > 1000);
+    let truth = table_scene().world_mesh(3).0;
+    let within = depthmesh::eval::fraction_within(&mesh, &truth, 0.01, 0.01).unwrap();
+    assert!(
+        within > 0.988,
+        "{:.2}% within 1 cm of the scene",
+        100.0 * within
+    );
     let stats = std::fs::read_to_string(out.join("stats.csv")).unwrap();
     let header: Vec<&str> = stats.lines().next().unwrap().split(',').collect();
     let column = header.iter().position(|h| *h == "remeshed_blocks").unwrap();
@@ -399,12 +448,16 @@ fn voxel_planes_follow_the_run_contract() {
     let voxels = summary["voxels"].as_u64().unwrap();
     assert!(voxels > 1000);
     assert!(summary["planar_voxels"].as_u64().unwrap() > voxels / 2);
-    // 10 floats of 4 bytes per voxel, as the paper counts.
-    assert_eq!(
-        summary["representation_bytes"].as_u64().unwrap(),
-        voxels * 40
-    );
-    assert!(summary["surface_within_2cm"].as_f64().unwrap() > 0.95);
+    // The paper's accounting (10 floats a voxel) cannot exceed what the
+    // map really holds.
+    let counted = summary["representation_bytes"].as_u64().unwrap();
+    assert!(counted > 0 && counted <= summary["map_bytes"].as_u64().unwrap());
+    // Measured 99.89 % within 2 cm and 99.34 % within 1 cm (the README's
+    // 30-iteration run: 99.92 % and 99.3 %); the bounds let the share
+    // beyond grow about 1.5 to 2.5 times.
+    let within = |key: &str| summary[key].as_f64().unwrap();
+    assert!(within("surface_within_2cm") > 0.997, "{summary}");
+    assert!(within("surface_within_1cm") > 0.99, "{summary}");
     assert!(sim.join("view.png").is_file() && sim.join("scene.ply").is_file());
     let mesh = depthmesh::mesh::io::read_mesh(&sim.join("mesh.ply")).unwrap();
     assert!(mesh.triangle_count() > 1000);
