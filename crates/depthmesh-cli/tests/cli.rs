@@ -307,7 +307,31 @@ fn table_scene() -> depthmesh::sim::Scene {
     depthmesh::sim::Scene::load(Path::new(TABLE), &options).unwrap()
 }
 
-/// A 7-Scenes style frames folder of the simulated table, 160×120, 3 frames.
+/// The colour the frames folder gives a point of the table scene: the
+/// floor and the bottom of the legs red, everything higher green.
+fn scene_colour(p: glam::Vec3) -> [u8; 3] {
+    if p.y < 0.2 {
+        [200, 40, 40]
+    } else {
+        [40, 200, 40]
+    }
+}
+
+/// Writes an 8-bit RGB PNG.
+fn write_rgb_png(path: &Path, width: u32, height: u32, rgb: &[u8]) {
+    let mut encoder = png::Encoder::new(std::fs::File::create(path).unwrap(), width, height);
+    encoder.set_color(png::ColorType::Rgb);
+    encoder.set_depth(png::BitDepth::Eight);
+    encoder
+        .write_header()
+        .unwrap()
+        .write_image_data(rgb)
+        .unwrap();
+}
+
+/// A 7-Scenes style frames folder of the simulated table, 160×120, 3
+/// frames: depth, poses, and colour by [`scene_colour`] (black where the
+/// sensor sees nothing).
 fn simulated_frames_folder(dir: &Path) {
     use depthmesh::sim::{NoiseModel, PathSpec, SimulatedSensor};
     let scene = table_scene();
@@ -335,6 +359,16 @@ fn simulated_frames_folder(dir: &Path) {
             .unwrap()
             .write_image_data(&mm)
             .unwrap();
+        let rgb: Vec<u8> = (0..k.height)
+            .flat_map(|v| (0..k.width).map(move |u| (u, v)))
+            .zip(&frame.depth.data)
+            .flat_map(|((u, v), &d)| match d > 0.0 {
+                true => scene_colour(pose.transform_point(k.back_project(u as f32, v as f32, d))),
+                false => [0; 3],
+            })
+            .collect();
+        let colour = dir.join(format!("frame-{i:06}.color.png"));
+        write_rgb_png(&colour, k.width, k.height, &rgb);
         let r = pose.rotation;
         let t = pose.translation;
         let rows: Vec<String> = (0..3)
@@ -420,6 +454,50 @@ fn reconstruct_fuses_a_frames_folder() {
     std::fs::remove_file(dir.join("frame-000001.pose.txt")).unwrap();
     let again = depthmesh(&args);
     assert_fails_with(&again, &["frame-000001.pose.txt"]);
+    std::fs::remove_dir_all(dir).unwrap();
+}
+
+#[test]
+fn reconstruct_with_colour_paints_the_mesh_as_the_images_show_it() {
+    let dir = scratch("colour");
+    simulated_frames_folder(&dir);
+    let out = dir.join("out");
+    ok(&depthmesh(&[
+        "reconstruct",
+        dir.to_str().unwrap(),
+        "--voxel",
+        "0.02",
+        "--color",
+        "--quiet",
+        "--out",
+        out.to_str().unwrap(),
+    ]));
+    // Distance, weight and three colour bytes.
+    assert_eq!(summary(&out)["bytes_per_voxel"], 7.0);
+    let mesh = read_mesh(&out.join("mesh.ply")).unwrap();
+    assert_eq!(mesh.colors.len(), mesh.vertex_count());
+    // Away from the height where the colour changes (a voxel or two
+    // blends the two there), each vertex has the colour of where it is.
+    let (mut checked, mut wrong) = (0, 0);
+    for (p, c) in mesh.positions.iter().zip(&mesh.colors) {
+        if (p.y - 0.2).abs() < 0.05 {
+            continue;
+        }
+        checked += 1;
+        let want = scene_colour(*p);
+        if (0..3).any(|i| c[i].abs_diff(want[i]) > 8) {
+            wrong += 1;
+        }
+    }
+    // Measured 1.3 % off by more than 8 levels: at the table's edges, where
+    // voxels in front of the floor also took its colour (as in Open3D). A
+    // colour averaged with black where a voxel was first seen as free space
+    // left 12 % too dark.
+    assert!(checked > 1000);
+    assert!(
+        wrong * 50 <= checked,
+        "{wrong} of {checked} vertices in the wrong colour"
+    );
     std::fs::remove_dir_all(dir).unwrap();
 }
 

@@ -452,16 +452,17 @@ fn integrate_block(
                 block.tsdf[i] = new;
                 block.weight[i] = (wt + 1).min(c.max_weight);
                 let mut seen = new != old || wt == 0;
-                // Colour only near the surface, where it belongs to it.
+                // Colour is averaged with the distance's own weight, so it
+                // must be fused whenever the distance is (as Open3D does):
+                // fused only near the surface, a voxel first seen as free
+                // space would average its first colour with black.
                 if let (Some(colors), Some(image)) = (block.color.as_deref_mut(), color) {
-                    if sdf.abs() < c.truncation {
-                        let (old, new) = (colors[i], image.data[px]);
-                        colors[i] = std::array::from_fn(|ch| {
-                            let o = f32::from(old[ch]);
-                            (o + (f32::from(new[ch]) - o) * reciprocal[usize::from(wt)] + 0.5) as u8
-                        });
-                        seen |= colors[i] != old;
-                    }
+                    let (old, new) = (colors[i], image.data[px]);
+                    colors[i] = std::array::from_fn(|ch| {
+                        let o = f32::from(old[ch]);
+                        (o + (f32::from(new[ch]) - o) * reciprocal[usize::from(wt)] + 0.5) as u8
+                    });
+                    seen |= colors[i] != old;
                 }
                 readers |= readers_of[i] & 0u8.wrapping_sub(u8::from(seen));
                 weights = true;
