@@ -38,6 +38,7 @@ pub fn summary(out: &std::path::Path) -> serde_json::Value {
 }
 
 /// The command failed with a message containing every one of `needles`, and no panic.
+#[allow(dead_code)] // not every test file needs it
 pub fn assert_fails_with(output: &Output, needles: &[&str]) {
     let stderr = String::from_utf8_lossy(&output.stderr);
     assert!(
