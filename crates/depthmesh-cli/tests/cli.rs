@@ -215,7 +215,14 @@ fn bounded_tsdf_run_writes_chunks_whose_union_is_the_mesh() {
         "--out",
         o,
     ];
-    ok(&depthmesh(&args));
+    let run = depthmesh(&args);
+    ok(&run);
+    // 2.5 m is short of the simulated Kinect's reach, and the run says so.
+    let stderr = String::from_utf8_lossy(&run.stderr);
+    assert!(
+        stderr.contains("is less than the sensor's reach"),
+        "{stderr}"
+    );
     let summary = summary(&out);
     let count = |key: &str| {
         summary[key]
@@ -637,6 +644,14 @@ fn the_study_writes_its_plots_and_table() {
     }
     let csv = std::fs::read_to_string(out.join("study.csv")).unwrap();
     assert_eq!(csv.lines().count(), 1 + 2 * 2, "{csv}");
+    // Beside the paper's accounting, what each map really holds, never less.
+    let header: Vec<&str> = csv.lines().next().unwrap().split(',').collect();
+    let column = |name: &str| header.iter().position(|h| *h == name).unwrap();
+    let (counted, held) = (column("representation_bytes"), column("map_bytes"));
+    for row in csv.lines().skip(1) {
+        let cells: Vec<u64> = row.split(',').map(|c| c.parse().unwrap_or(0)).collect();
+        assert!(cells[counted] > 0 && cells[held] >= cells[counted], "{row}");
+    }
     let bad = depthmesh(&["study", "--voxels", "0", "--quiet", "--out", o]);
     assert_fails_with(&bad, &["--voxels"]);
     std::fs::remove_dir_all(out).unwrap();
