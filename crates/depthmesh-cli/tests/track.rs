@@ -97,6 +97,21 @@ fn eval_measures_a_known_offset_in_centimetres() {
     near("ate_rmse_aligned_cm", 0.0);
     near("rpe_translation_mm", 0.0);
     near("rpe_rotation_deg", 0.0);
+    // One pose 6 cm off instead: RMSE √((8·3² + 6²) / 9) = √12 cm, max 6 cm.
+    let bumped: String = (0..9)
+        .map(|t| line(t, if t == 4 { 0.06 } else { 0.03 }))
+        .collect();
+    std::fs::write(dir.join("est.txt"), bumped).unwrap();
+    let e = eval_json(&dir.join("est.txt"), &dir.join("ref.txt"));
+    let near = |key: &str, want: f64| {
+        let got = e[key].as_f64().unwrap();
+        assert!(
+            (got - want).abs() < 1e-3,
+            "{key} {got}, expected {want}: {e}"
+        );
+    };
+    near("ate_rmse_cm", 12f64.sqrt());
+    near("ate_max_cm", 6.0);
     std::fs::remove_dir_all(dir).unwrap();
 }
 
