@@ -11,14 +11,14 @@
 
 mod common;
 
-use common::{depthmesh, ok, scratch, summary};
+use common::{depthmesh, eval_json, ok, scratch, summary};
 use depthmesh::eval::distance::MeshDistance;
 use depthmesh::eval::sample_surface;
 use depthmesh::mesh::io::read_mesh;
 use depthmesh::Mesh;
 use glam::Vec3;
 use serde_json::Value;
-use std::path::PathBuf;
+use std::path::{Path, PathBuf};
 
 const FRAMES: &str = "0..100";
 /// Probe distances are measured up to this far from the mesh.
@@ -32,6 +32,17 @@ fn kitchen() -> PathBuf {
     kitchen
 }
 
+/// Runs `reconstruct` on frames [`FRAMES`] of `data` with `extra` flags,
+/// into a scratch folder named for `name`, which it returns.
+fn reconstruct(data: &Path, name: &str, extra: &[&str]) -> PathBuf {
+    let out = scratch(name);
+    let mut args = vec!["reconstruct", data.to_str().unwrap(), "--frames", FRAMES];
+    args.extend(extra);
+    args.extend(["--quiet", "--out", out.to_str().unwrap()]);
+    ok(&depthmesh(&args));
+    out
+}
+
 fn expected_path() -> PathBuf {
     PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("tests/kitchen_expected.json")
 }
@@ -40,27 +51,9 @@ fn expected_path() -> PathBuf {
 #[ignore = "needs the 7-Scenes frames; run by .ci/realdata"]
 fn kitchen_frames_are_tracked_within_two_centimetres_without_loss() {
     let data = kitchen();
-    let out = scratch("real-track");
-    ok(&depthmesh(&[
-        "reconstruct",
-        data.to_str().unwrap(),
-        "--frames",
-        FRAMES,
-        "--track",
-        "--quiet",
-        "--out",
-        out.to_str().unwrap(),
-    ]));
+    let out = reconstruct(&data, "real-track", &["--track"]);
     let s = summary(&out);
-    let eval = depthmesh(&[
-        "eval",
-        "trajectory",
-        out.join("trajectory.txt").to_str().unwrap(),
-        data.to_str().unwrap(),
-        "--json",
-    ]);
-    ok(&eval);
-    let e: Value = serde_json::from_slice(&eval.stdout).unwrap();
+    let e = eval_json(&out.join("trajectory.txt"), &data);
     println!(
         "tracked kitchen frames {FRAMES}: lost frames {}, {e}",
         s["lost_frames"]
@@ -101,17 +94,7 @@ fn distances(mesh: &Mesh, points: &[Vec3]) -> Vec<Option<f32>> {
 #[test]
 #[ignore = "needs the 7-Scenes frames; run by .ci/realdata"]
 fn kitchen_frames_fuse_into_the_expected_mesh() {
-    let data = kitchen();
-    let out = scratch("real-fuse");
-    ok(&depthmesh(&[
-        "reconstruct",
-        data.to_str().unwrap(),
-        "--frames",
-        FRAMES,
-        "--quiet",
-        "--out",
-        out.to_str().unwrap(),
-    ]));
+    let out = reconstruct(&kitchen(), "real-fuse", &[]);
     let mesh = read_mesh(&out.join("mesh.ply")).unwrap();
     std::fs::remove_dir_all(out).unwrap();
     if std::env::var_os("DEPTHMESH_WRITE_EXPECTED").is_some() {

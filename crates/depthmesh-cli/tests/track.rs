@@ -3,7 +3,7 @@
 
 mod common;
 
-use common::{assert_fails_with, depthmesh, ok, scratch, summary};
+use common::{assert_fails_with, depthmesh, eval_json, ok, scratch, summary};
 use serde_json::Value;
 
 #[test]
@@ -55,17 +55,13 @@ fn a_noisy_simulated_sequence_is_tracked_within_a_centimetre() {
     std::fs::remove_dir_all(dir).unwrap();
 }
 
-/// `eval trajectory --json` of `estimate` against `reference`.
-fn eval_json(estimate: &std::path::Path, reference: &std::path::Path) -> Value {
-    let eval = depthmesh(&[
-        "eval",
-        "trajectory",
-        estimate.to_str().unwrap(),
-        reference.to_str().unwrap(),
-        "--json",
-    ]);
-    ok(&eval);
-    serde_json::from_slice(&eval.stdout).unwrap()
+/// Asserts `e[key]` is `want` to within 1e-3.
+fn assert_near(e: &Value, key: &str, want: f64) {
+    let got = e[key].as_f64().unwrap();
+    assert!(
+        (got - want).abs() < 1e-3,
+        "{key} {got}, expected {want}: {e}"
+    );
 }
 
 #[test]
@@ -84,34 +80,20 @@ fn eval_measures_a_known_offset_in_centimetres() {
     std::fs::write(dir.join("ref.txt"), reference).unwrap();
     std::fs::write(dir.join("est.txt"), estimate).unwrap();
     let e = eval_json(&dir.join("est.txt"), &dir.join("ref.txt"));
-    let near = |key: &str, want: f64| {
-        let got = e[key].as_f64().unwrap();
-        assert!(
-            (got - want).abs() < 1e-3,
-            "{key} {got}, expected {want}: {e}"
-        );
-    };
     assert_eq!(e["matched"], 9);
-    near("ate_rmse_cm", 3.0);
-    near("ate_max_cm", 3.0);
-    near("ate_rmse_aligned_cm", 0.0);
-    near("rpe_translation_mm", 0.0);
-    near("rpe_rotation_deg", 0.0);
+    assert_near(&e, "ate_rmse_cm", 3.0);
+    assert_near(&e, "ate_max_cm", 3.0);
+    assert_near(&e, "ate_rmse_aligned_cm", 0.0);
+    assert_near(&e, "rpe_translation_mm", 0.0);
+    assert_near(&e, "rpe_rotation_deg", 0.0);
     // One pose 6 cm off instead: RMSE √((8·3² + 6²) / 9) = √12 cm, max 6 cm.
     let bumped: String = (0..9)
         .map(|t| line(t, if t == 4 { 0.06 } else { 0.03 }))
         .collect();
     std::fs::write(dir.join("est.txt"), bumped).unwrap();
     let e = eval_json(&dir.join("est.txt"), &dir.join("ref.txt"));
-    let near = |key: &str, want: f64| {
-        let got = e[key].as_f64().unwrap();
-        assert!(
-            (got - want).abs() < 1e-3,
-            "{key} {got}, expected {want}: {e}"
-        );
-    };
-    near("ate_rmse_cm", 12f64.sqrt());
-    near("ate_max_cm", 6.0);
+    assert_near(&e, "ate_rmse_cm", 12f64.sqrt());
+    assert_near(&e, "ate_max_cm", 6.0);
     std::fs::remove_dir_all(dir).unwrap();
 }
 

@@ -50,3 +50,18 @@ pub fn assert_fails_with(output: &Output, needles: &[&str]) {
         assert!(stderr.contains(n), "stderr lacks {n:?}: {stderr}");
     }
 }
+
+/// `eval trajectory --json` of `estimate` against `reference` (a TUM file
+/// or a dataset folder), which must succeed.
+#[allow(dead_code)] // not every test file needs it
+pub fn eval_json(estimate: &std::path::Path, reference: &std::path::Path) -> serde_json::Value {
+    let eval = depthmesh(&[
+        "eval",
+        "trajectory",
+        estimate.to_str().unwrap(),
+        reference.to_str().unwrap(),
+        "--json",
+    ]);
+    ok(&eval);
+    serde_json::from_slice(&eval.stdout).unwrap()
+}
