@@ -9,7 +9,9 @@
 #  2. `depthmesh export --align-floor --collision --simplify 0.1` to GLB, then
 #     the Khronos glTF validator (npm `gltf-validator`, installed in a scratch
 #     folder outside the repository), trimesh loading it, the vertices per
-#     chunk, and the floor's angle to horizontal after alignment.
+#     chunk, and the floor's angle to horizontal after alignment. The script
+#     fails (after printing everything) when the validator reports any error
+#     or warning.
 # Usage: bench/export_check.sh [MESH.ply]   (default: make the TSDF mesh)
 # Needs ../shared (or DEPTHMESH_SHARED) and node/npm for the validator.
 set -euo pipefail
@@ -74,15 +76,17 @@ validator=${TMPDIR:-/tmp}/depthmesh-gltf-validator
 if [[ ! -d $validator/node_modules/gltf-validator ]]; then
   mkdir -p "$validator" && (cd "$validator" && npm install --silent gltf-validator >&2)
 fi
-NODE_PATH=$validator/node_modules node - "$work/map.glb" "$work/full.glb" <<'JS'
+valid=yes
+NODE_PATH=$validator/node_modules node - "$work/map.glb" "$work/full.glb" <<'JS' || valid=no
 const fs = require('fs'), v = require('gltf-validator');
 (async () => {
   for (const f of process.argv.slice(2)) {
     const i = (await v.validateBytes(new Uint8Array(fs.readFileSync(f)))).issues;
     console.log(`gltf-validator ${f.split('/').pop()}: ${i.numErrors} errors, ${i.numWarnings} warnings, ${i.numInfos} infos`);
     for (const m of i.messages.filter(m => m.severity <= 1)) console.log(`  ${m.code} ${m.pointer || ''} ${m.message}`);
+    if (i.numErrors + i.numWarnings > 0) process.exitCode = 1;
   }
-})();
+})().catch(e => { console.log(`gltf-validator failed: ${e}`); process.exitCode = 1; });
 JS
 "$PY" - "$work/map.glb" "$work/full.glb" <<'PY'
 import sys
@@ -107,3 +111,7 @@ normal = vt[2] * np.sign(vt[2][1])
 print(f"floor after --align-floor: {sel.sum()} faces, {a[sel].sum():.2f} m^2, height {mu[1]*1e3:.1f} mm, "
       f"{np.degrees(np.arccos(min(1, normal[1]))):.2f} degrees from horizontal")
 PY
+if [[ $valid != yes ]]; then
+  echo "FAIL: the glTF validator reported errors or warnings (above)" >&2
+  exit 1
+fi

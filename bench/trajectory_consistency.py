@@ -16,9 +16,13 @@ frame i's surface:
   * each moved point of frame j is matched to its nearest point q of frame i;
     matches farther than 3 cm are dropped (non-overlapping or occluded parts);
   * the pair's figure is the mean point-to-plane distance |(p - q) . n_q| in
-    mm, kept when more than 200 points matched.
+    mm.
 
-Pairs start every 10 frames and the figures are averaged per gap.  Sensor
+Pairs start every 10 frames and the figures are averaged per gap. Every
+trajectory is scored on the same pairs: a pair counts only when every
+trajectory matches more than 200 points in it, and the pairs a trajectory
+failed that way are reported beside its figures, so a trajectory cannot look
+better by dropping the pairs it registers badly.  Sensor
 noise and the sampling give a floor of a few mm that every trajectory shares,
 so the numbers are for comparing trajectories on the same frames: the one that
 registers the depth frames more consistently has the lower figures.  A gap
@@ -28,12 +32,12 @@ higher figures at the gaps spanning the jump, and only there.
 
 Usage:
   PY bench/trajectory_consistency.py FOLDER TRAJ [TRAJ ...]
-        [--frames N] [--gaps 20,50,100,150,200,250] [--json]
+        [--frames N] [--gaps 20,50,100,150,200,250] [--intrinsics fx,fy,cx,cy] [--json]
 
   FOLDER  a 7-Scenes style frames folder: frame-XXXXXX.depth.png (16-bit,
           millimetres, 0 = no depth), frame-XXXXXX.pose.txt (4x4
-          camera-to-world) and optionally camera-intrinsics.txt (3x3; without
-          it fx = fy = 585, cx = 320, cy = 240).
+          camera-to-world) and camera-intrinsics.txt (3x3), or the
+          intrinsics given as --intrinsics fx,fy,cx,cy.
   TRAJ    a TUM trajectory file (`timestamp tx ty tz qx qy qz qw`, the
           timestamp being the frame index, `#` starts a comment line), or the
           word `folder` for the folder's own pose files.
@@ -41,9 +45,10 @@ Usage:
 PY is a Python with numpy and open3d; scipy is used for the nearest-neighbour
 search when present (Open3D's search otherwise).  Frames 0..N-1 are used
 (default N = 300), fewer if a trajectory or the folder stops earlier.  The
-output is one row per gap with, for each trajectory, the mean figure (mm), the
-mean number of matched points and the number of pairs, then the mean over the
-gaps per trajectory; `--json` prints one JSON object instead.
+output is one row per gap with the pairs used of those tried and, for each
+trajectory, the mean figure (mm), the mean number of matched points and the
+pairs it failed, then the mean over the gaps per trajectory; `--json` prints
+one JSON object instead.
 """
 import argparse
 import json
@@ -68,8 +73,7 @@ MAX_DEPTH = 3.0         # m; farther depths are dropped
 NORMAL_RADIUS = 0.05    # m
 NORMAL_MAX_NN = 30
 MATCH_DIST = 0.03       # m; farther nearest neighbours are not matches
-MIN_MATCHES = 200       # a pair needs more matches than this to count
-DEFAULT_INTRINSICS = np.array([[585.0, 0.0, 320.0], [0.0, 585.0, 240.0], [0.0, 0.0, 1.0]])
+MIN_MATCHES = 200       # a pair needs more matches than this, in every trajectory, to count
 
 
 class InputError(Exception):
@@ -149,10 +153,14 @@ class FolderPoses:
         return self.cache[i]
 
 
-def read_intrinsics(folder):
+def read_intrinsics(folder, given):
+    """The 3x3 camera matrix: --intrinsics if given, else the folder's camera-intrinsics.txt."""
+    if given is not None:
+        fx, fy, cx, cy = given
+        return np.array([[fx, 0.0, cx], [0.0, fy, cy], [0.0, 0.0, 1.0]])
     path = os.path.join(folder, 'camera-intrinsics.txt')
     if not os.path.isfile(path):
-        return DEFAULT_INTRINSICS.copy()
+        raise InputError(f'{path}: not found; give the camera as --intrinsics fx,fy,cx,cy')
     try:
         K = np.loadtxt(path).reshape(3, 3)
     except (OSError, ValueError) as e:
@@ -258,32 +266,44 @@ def pair_figure(target, source, T):
 
 # --------------------------------------------------------------------------- main
 
-def evaluate(folder, trajectories, frames, gaps):
-    """{name: {gap: [(figure_mm, matches), ...]}} over the pairs of every gap."""
-    cache = FrameCache(folder, read_intrinsics(folder))
-    results = {name: {g: [] for g in gaps} for name, _, _ in trajectories}
+def evaluate(folder, K, trajectories, frames, gaps):
+    """Per gap: pairs tried, and per trajectory the (figure_mm, matches) of
+    the pairs every trajectory registered and the count of pairs it failed."""
+    cache = FrameCache(folder, K)
+    names = [name for name, _, _ in trajectories]
+    results = {g: {'tried': 0, 'used': {n: [] for n in names}, 'failed': {n: 0 for n in names}}
+               for g in gaps}
     for g in gaps:
         for i in range(0, frames - g, PAIR_STEP):
             j = i + g
             target, source = cache[i], cache[j]
+            figures = {}
             for name, _, poses in trajectories:
                 T = np.linalg.inv(poses[i]) @ poses[j]
-                mean, matches = pair_figure(target, source, T)
-                if matches > MIN_MATCHES:
-                    results[name][g].append((mean * 1000.0, matches))
+                figures[name] = pair_figure(target, source, T)
+            r = results[g]
+            r['tried'] += 1
+            failed = [n for n, (_, matches) in figures.items() if matches <= MIN_MATCHES]
+            for n in failed:
+                r['failed'][n] += 1
+            if not failed:
+                for n, (mean, matches) in figures.items():
+                    r['used'][n].append((mean * 1000.0, matches))
     return results
 
 
-def summarise(results, gaps):
+def summarise(results, names, gaps):
     out = {}
-    for name, per_gap in results.items():
+    for name in names:
         rows = {}
         for g in gaps:
-            pairs = per_gap[g]
+            pairs = results[g]['used'][name]
             rows[g] = {
                 'mean_mm': float(np.mean([m for m, _ in pairs])) if pairs else None,
                 'mean_matches': float(np.mean([c for _, c in pairs])) if pairs else None,
                 'pairs': len(pairs),
+                'pairs_tried': results[g]['tried'],
+                'pairs_failed': results[g]['failed'][name],
             }
         means = [r['mean_mm'] for r in rows.values() if r['mean_mm'] is not None]
         out[name] = {'per_gap': rows, 'mean_mm': float(np.mean(means)) if means else None}
@@ -293,16 +313,19 @@ def summarise(results, gaps):
 def print_table(summary, gaps, frames, limit):
     names = list(summary)
     width = max(22, max(len(n) for n in names) + 2)
-    print(f'frames 0..{frames - 1}, pairs every {PAIR_STEP} frames; per trajectory: '
-          f'mean point-to-plane mm / mean matches / pairs' + (f' (limited by {limit})' if limit else ''))
-    print('gap  ' + ''.join(f'{n:>{width}}' for n in names))
+    print(f'frames 0..{frames - 1}, pairs every {PAIR_STEP} frames, the same pairs for every trajectory; '
+          f'per trajectory: mean point-to-plane mm / mean matches / pairs it failed'
+          + (f' (limited by {limit})' if limit else ''))
+    print('gap  pairs used/tried' + ''.join(f'{n:>{width}}' for n in names))
     for g in gaps:
+        first = summary[names[0]]['per_gap'][g]
         cells = []
         for n in names:
             r = summary[n]['per_gap'][g]
-            cell = '-' if r['mean_mm'] is None else f"{r['mean_mm']:6.2f} {r['mean_matches']:6.0f} {r['pairs']:3d}"
+            cell = '-' if r['mean_mm'] is None else f"{r['mean_mm']:6.2f} {r['mean_matches']:6.0f}"
+            cell += f" {r['pairs_failed']:3d}"
             cells.append(f'{cell:>{width}}')
-        print(f'{g:<5d}' + ''.join(cells))
+        print(f"{g:<5d}{first['pairs']:>5d}/{first['pairs_tried']:<5d}     " + ''.join(cells))
     for n in names:
         m = summary[n]['mean_mm']
         print(f'mean over gaps  {n}: ' + ('-' if m is None else f'{m:.2f} mm'))
@@ -318,6 +341,16 @@ def parse_gaps(text):
     return gaps
 
 
+def parse_intrinsics(text):
+    try:
+        values = [float(x) for x in text.split(',')]
+    except ValueError:
+        values = []
+    if len(values) != 4 or not all(np.isfinite(values)) or values[0] <= 0 or values[1] <= 0:
+        raise argparse.ArgumentTypeError(f'expected fx,fy,cx,cy with positive focal lengths: {text!r}')
+    return values
+
+
 def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__.split('\n\n')[0],
                                  formatter_class=argparse.RawDescriptionHelpFormatter)
@@ -326,6 +359,8 @@ def main(argv=None):
     ap.add_argument('--frames', type=int, default=300, help='use frames 0..N-1 (default 300)')
     ap.add_argument('--gaps', type=parse_gaps, default=[20, 50, 100, 150, 200, 250],
                     help='comma-separated frame gaps (default 20,50,100,150,200,250)')
+    ap.add_argument('--intrinsics', type=parse_intrinsics,
+                    help='fx,fy,cx,cy, when the folder has no camera-intrinsics.txt')
     ap.add_argument('--json', action='store_true', help='print one JSON object instead of the table')
     args = ap.parse_args(argv)
 
@@ -336,6 +371,7 @@ def main(argv=None):
             raise InputError(f'{args.folder}: frames folder not found')
         if args.frames <= 0:
             raise InputError(f'--frames must be positive, got {args.frames}')
+        K = read_intrinsics(args.folder, args.intrinsics)
         names = trajectory_names(args.traj)
         trajectories = [(name, a, FolderPoses(args.folder) if a == 'folder' else read_tum(a))
                         for name, a in zip(names, args.traj)]
@@ -345,12 +381,12 @@ def main(argv=None):
                 raise InputError(f'--frames {frames} leaves no pair for the smallest gap ({min(args.gaps)})')
             raise InputError(f'{limit}: frame {frames} is missing, but frames 0..{min(args.gaps)} '
                              f'are needed for the smallest gap ({min(args.gaps)})')
-        results = evaluate(args.folder, trajectories, frames, args.gaps)
+        results = evaluate(args.folder, K, trajectories, frames, args.gaps)
     except InputError as e:
         print(f'trajectory_consistency: {e}', file=sys.stderr)
         return 1
 
-    summary = summarise(results, args.gaps)
+    summary = summarise(results, names, args.gaps)
     if args.json:
         print(json.dumps({
             'folder': os.path.abspath(args.folder),

@@ -4,7 +4,8 @@
 # is built twice, without and with --active-radius. Reports the peak resident
 # memory of each run (/usr/bin/time -v), the blocks held, the chunks written,
 # and whether the bounded run's mesh.ply (chunks joined with the rest) holds
-# exactly the unbounded run's triangles.
+# exactly the unbounded run's triangles, whole vertex records compared
+# (position, normal and colour bytes).
 #
 # Usage: bench/tsdf_bounded.sh [LENGTH] [VOXEL] [RADIUS]     (defaults 60, 0.02, reach + 0.1)
 set -euo pipefail
@@ -64,19 +65,34 @@ python3 - "$work" "$rss_full" "$rss_bounded" "$length" "$voxel" <<'PY'
 import json, struct, sys
 work, rss_full, rss_bounded, length, voxel = sys.argv[1], int(sys.argv[2]), int(sys.argv[3]), sys.argv[4], sys.argv[5]
 full = json.load(open(f"{work}/unbounded/summary.json")); bounded = json.load(open(f"{work}/bounded/summary.json"))
+SIZES = {"char": 1, "uchar": 1, "int8": 1, "uint8": 1, "short": 2, "ushort": 2, "int16": 2, "uint16": 2,
+         "int": 4, "uint": 4, "int32": 4, "uint32": 4, "float": 4, "float32": 4, "double": 8, "float64": 8}
+FORMATS = {1: "B", 2: "H", 4: "I"}
 def triangles(path):
-    """Triangles as sorted tuples of corner positions (float bits), each rotated to start at its smallest corner."""
+    """Triangles as sorted tuples of their corners' whole vertex records (every property's
+    bytes: position, normal, colour), each rotated to start at its smallest corner."""
     data = open(path, "rb").read()
     end = data.index(b"end_header\n") + len(b"end_header\n")
     head = data[:end].decode().split("\n")
-    nv = int(next(l for l in head if l.startswith("element vertex")).split()[2])
-    nf = int(next(l for l in head if l.startswith("element face")).split()[2])
-    props = sum(1 for l in head if l.startswith("property float"))
-    size = 4 * props + 3 * sum(1 for l in head if l.startswith("property uchar"))
-    verts = [data[end + i * size:end + i * size + 12] for i in range(nv)]
+    assert "format binary_little_endian 1.0" in head, f"{path}: not binary little-endian PLY"
+    nv = nf = size = 0; element = None; count_type = index_type = None
+    for line in head:
+        words = line.split()
+        if words[:1] == ["element"]:
+            element = words[1]
+            if element == "vertex": nv = int(words[2])
+            if element == "face": nf = int(words[2])
+        elif words[:1] == ["property"] and element == "vertex":
+            size += SIZES[words[1]]
+        elif words[:2] == ["property", "list"] and element == "face":
+            count_type, index_type = words[2], words[3]
+    verts = [data[end + i * size:end + (i + 1) * size] for i in range(nv)]
+    cs, isz = SIZES[count_type], SIZES[index_type]
     out, at = [], end + nv * size
     for _ in range(nf):
-        a, b, c = struct.unpack_from("<3i", data, at + 1); at += 13
+        n = struct.unpack_from("<" + FORMATS[cs], data, at)[0]
+        assert n == 3, f"{path}: a face with {n} corners"
+        a, b, c = struct.unpack_from("<3" + FORMATS[isz], data, at + cs); at += cs + 3 * isz
         t = (verts[a], verts[b], verts[c]); k = t.index(min(t))
         out.append(t[k:] + t[:k])
     out.sort()
@@ -86,5 +102,5 @@ print(f"walk {length} m, {full['frames']} frames, voxel {voxel} m")
 print(f"unbounded  peak RSS {rss_full / 1024:7.1f} MB   blocks {full['map_bytes'] // (512 * 4)}   triangles {full['triangles']}   {full['fps']:.1f} frames/s")
 print(f"bounded    peak RSS {rss_bounded / 1024:7.1f} MB   peak blocks {bounded['peak_blocks']}   evicted {bounded['evicted_blocks']}   "
       f"chunks {bounded['chunks']}   triangles {bounded['triangles']}   {bounded['fps']:.1f} frames/s   (radius {bounded['active_radius']:.2f} m)")
-print(f"union of chunks + rest == unbounded mesh (exact triangles): {same}")
+print(f"union of chunks + rest == unbounded mesh (exact triangles, whole vertex records): {same}")
 PY

@@ -79,6 +79,11 @@ pub struct MabdiBenchArgs {
     /// reference renderer.
     #[arg(long)]
     pub out: Option<PathBuf>,
+    /// Time iterations without object removal (no evidence gathered while E
+    /// is rendered), as `simulate --keep-removed` runs; recorded in the JSON
+    /// as `removal`.
+    #[arg(long)]
+    pub keep_removed: bool,
 }
 
 /// Runs a benchmark.
@@ -183,7 +188,7 @@ fn mabdi(args: &MabdiBenchArgs) -> Result<()> {
     let build_poses = PathSpec::Helix.build(&scene, 30)?;
     let mut sensor = SimulatedSensor::kinect(NoiseModel::None, 0);
     let mut config = MabdiConfig::thesis(sensor.intrinsics, sensor.near, sensor.far);
-    if std::env::var("NOREM").is_ok() {
+    if args.keep_removed {
         config.removal = None;
     }
     let mut naive = NaiveMapper::new(config)?;
@@ -249,6 +254,7 @@ fn mabdi(args: &MabdiBenchArgs) -> Result<()> {
             "cy": sensor.intrinsics.cy,
             "triangles": triangles,
             "iterations": args.iterations,
+            "removal": !args.keep_removed,
             "threads": rayon::current_num_threads(),
             "median_ms": iteration,
             "hz": 1000.0 / iteration,

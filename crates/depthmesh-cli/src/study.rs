@@ -104,6 +104,9 @@ struct Outcome {
     /// (points fused, cumulative seconds of integration and meshing).
     runtime: Vec<(usize, f64)>,
     representation_bytes: usize,
+    /// The bytes the map really holds (`Mapper::stats`): for planes the
+    /// dense voxel grids of every allocated cell, not only occupied voxels.
+    map_bytes: usize,
     triangles: usize,
     mean_error: f64,
     median_error: f64,
@@ -334,6 +337,7 @@ fn measure(source: &Source, method: Method, voxel: f32) -> Result<Outcome> {
         voxel,
         runtime,
         representation_bytes: map.representation_bytes(),
+        map_bytes: map.mapper().stats().bytes,
         triangles: mesh.triangle_count(),
         mean_error: distances.iter().map(|&d| f64::from(d)).sum::<f64>() / count,
         median_error: distances
@@ -447,7 +451,7 @@ fn total(o: &Outcome) -> (usize, f64) {
 
 fn table_csv(outcomes: &[Outcome]) -> String {
     let mut s = String::from(
-        "source,method,voxel_m,epsilon_m,points,seconds,points_per_second,representation_bytes,triangles,mean_error_m,median_error_m,within_1cm\n",
+        "source,method,voxel_m,epsilon_m,points,seconds,points_per_second,representation_bytes,map_bytes,triangles,mean_error_m,median_error_m,within_1cm\n",
     );
     for o in outcomes {
         let (points, seconds) = total(o);
@@ -457,7 +461,7 @@ fn table_csv(outcomes: &[Outcome]) -> String {
         };
         let _ = writeln!(
             s,
-            "{},{},{},{},{},{:.4},{:.0},{},{},{:.5},{:.5},{:.4}",
+            "{},{},{},{},{},{:.4},{:.0},{},{},{},{:.5},{:.5},{:.4}",
             o.source,
             o.method.name(),
             o.voxel,
@@ -466,6 +470,7 @@ fn table_csv(outcomes: &[Outcome]) -> String {
             seconds,
             points as f64 / seconds.max(1e-12),
             o.representation_bytes,
+            o.map_bytes,
             o.triangles,
             o.mean_error,
             o.median_error,
@@ -513,9 +518,9 @@ fn table_markdown(sources: &[Source], outcomes: &[Outcome]) -> String {
         );
         let _ = writeln!(
             s,
-            "| voxel | method | seconds | M points/s | TSDF s / planes s | representation | triangles | mean error | median error | within 1 cm | TSDF mean error at the same size |"
+            "| voxel | method | seconds | M points/s | TSDF s / planes s | representation | map memory | triangles | mean error | median error | within 1 cm | TSDF mean error at the same size |"
         );
-        let _ = writeln!(s, "|---|---|---|---|---|---|---|---|---|---|---|");
+        let _ = writeln!(s, "|---|---|---|---|---|---|---|---|---|---|---|---|");
         for o in &mine {
             let (points, seconds) = total(o);
             let twin = mine
@@ -534,13 +539,14 @@ fn table_markdown(sources: &[Source], outcomes: &[Outcome]) -> String {
             };
             let _ = writeln!(
                 s,
-                "| {} cm | {} | {:.3} | {:.1} | {} | {:.2} MB | {} | {:.2} cm | {:.2} cm | {:.1} % | {} |",
+                "| {} cm | {} | {:.3} | {:.1} | {} | {:.2} MB | {:.2} MB | {} | {:.2} cm | {:.2} cm | {:.1} % | {} |",
                 centimetres(o.voxel),
                 o.method.name(),
                 seconds,
                 points as f64 / seconds.max(1e-12) / 1e6,
                 ratio,
                 o.representation_bytes as f64 / 1e6,
+                o.map_bytes as f64 / 1e6,
                 o.triangles,
                 o.mean_error * 100.0,
                 o.median_error * 100.0,

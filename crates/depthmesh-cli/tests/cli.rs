@@ -1,10 +1,15 @@
 //! The command line end to end: the run contract, and clear errors with no
 //! output for bad input.
 
+use depthmesh::mesh::io::read_mesh;
+use depthmesh::Mesh;
 use std::path::Path;
 
 mod common;
-use common::{assert_fails_with, depthmesh, ok, scratch, simulated_frames_folder, summary};
+use common::{
+    assert_fails_with, depthmesh, ok, scene_colour, scratch, simulated_frames_folder, summary,
+    table_scene,
+};
 
 const TABLE: &str = "../../scenes/table.toml";
 
@@ -213,7 +218,14 @@ fn bounded_tsdf_run_writes_chunks_whose_union_is_the_mesh() {
         "--out",
         o,
     ];
-    ok(&depthmesh(&args));
+    let run = depthmesh(&args);
+    ok(&run);
+    // 2.5 m is short of the simulated Kinect's reach, and the run says so.
+    let stderr = String::from_utf8_lossy(&run.stderr);
+    assert!(
+        stderr.contains("is less than the sensor's reach"),
+        "{stderr}"
+    );
     let summary = summary(&out);
     let count = |key: &str| {
         summary[key]
@@ -225,9 +237,37 @@ fn bounded_tsdf_run_writes_chunks_whose_union_is_the_mesh() {
     assert_eq!(chunks.len() as u64, count("chunks"));
     let mesh = depthmesh::mesh::io::read_mesh(&out.join("mesh.ply")).unwrap();
     assert_eq!(mesh.triangle_count() as u64, count("triangles"));
-    let first = depthmesh::mesh::io::read_mesh(&out.join("chunks/chunk-000001.ply")).unwrap();
-    assert!(first.triangle_count() > 0 && first.triangle_count() < mesh.triangle_count());
+    // mesh.ply is the chunks in order, then the blocks still in memory.
+    let mut start = 0;
+    for n in 1..=count("chunks") {
+        let chunk = read_mesh(&out.join(format!("chunks/chunk-{n:06}.ply"))).unwrap();
+        assert!(chunk.triangle_count() > 0, "chunk {n} is empty");
+        assert!(chunk.vertex_count() <= 65_535, "chunk {n} is too large");
+        let end = start + chunk.triangle_count();
+        assert!(
+            triangles(&chunk) == triangles(&mesh)[start..end],
+            "chunk {n} is not mesh.ply's triangles {start}..{end}"
+        );
+        start = end;
+    }
+    // The rest are the blocks still in memory at the end (this radius is
+    // shorter than the sensor's reach, so unlike `tsdf_bounded.rs` the
+    // union is not compared with an unbounded run).
+    assert!(start < mesh.triangle_count(), "nothing left in memory");
     std::fs::remove_dir_all(out).unwrap();
+}
+
+/// Each triangle of `mesh` as the bits of its corners' positions, starting
+/// at its smallest corner (the winding kept): comparable across files that
+/// number their vertices differently.
+fn triangles(mesh: &Mesh) -> Vec<[[u32; 3]; 3]> {
+    (0..mesh.triangle_count())
+        .map(|t| {
+            let c = mesh.corners(t).map(|p| p.to_array().map(f32::to_bits));
+            let first = (0..3).min_by_key(|&i| c[i]).unwrap();
+            [c[first], c[(first + 1) % 3], c[(first + 2) % 3]]
+        })
+        .collect()
 }
 
 #[test]
@@ -307,7 +347,20 @@ fn reconstruct_fuses_a_frames_folder() {
     }
     assert_eq!(summary["map"], "tsdf");
     assert_eq!(summary["bytes_per_voxel"], 4.0);
-    assert!(summary["triangles"].as_u64().unwrap() > 1000);
+    // The mesh is where the scene is: with a pose read the wrong way round
+    // (world-to-camera, or transposed) the frames would not even agree with
+    // each other. Noise-free 1 mm depth at 2 cm voxels: measured 99.2 %
+    // within 1 cm (half a voxel); the bound lets the share beyond it grow
+    // by two fifths.
+    let mesh = read_mesh(&out.join("mesh.ply")).unwrap();
+    assert!(mesh.triangle_count() > 1000);
+    let truth = table_scene().world_mesh(3).0;
+    let within = depthmesh::eval::fraction_within(&mesh, &truth, 0.01, 0.01).unwrap();
+    assert!(
+        within > 0.988,
+        "{:.2}% within 1 cm of the scene",
+        100.0 * within
+    );
     let stats = std::fs::read_to_string(out.join("stats.csv")).unwrap();
     let header: Vec<&str> = stats.lines().next().unwrap().split(',').collect();
     let column = header.iter().position(|h| *h == "remeshed_blocks").unwrap();
@@ -325,6 +378,50 @@ fn reconstruct_fuses_a_frames_folder() {
     std::fs::remove_file(dir.join("frame-000001.pose.txt")).unwrap();
     let again = depthmesh(&args);
     assert_fails_with(&again, &["frame-000001.pose.txt"]);
+    std::fs::remove_dir_all(dir).unwrap();
+}
+
+#[test]
+fn reconstruct_with_colour_paints_the_mesh_as_the_images_show_it() {
+    let dir = scratch("colour");
+    simulated_frames_folder(&dir, 3);
+    let out = dir.join("out");
+    ok(&depthmesh(&[
+        "reconstruct",
+        dir.to_str().unwrap(),
+        "--voxel",
+        "0.02",
+        "--color",
+        "--quiet",
+        "--out",
+        out.to_str().unwrap(),
+    ]));
+    // Distance, weight and three colour bytes.
+    assert_eq!(summary(&out)["bytes_per_voxel"], 7.0);
+    let mesh = read_mesh(&out.join("mesh.ply")).unwrap();
+    assert_eq!(mesh.colors.len(), mesh.vertex_count());
+    // Away from the height where the colour changes (a voxel or two
+    // blends the two there), each vertex has the colour of where it is.
+    let (mut checked, mut wrong) = (0, 0);
+    for (p, c) in mesh.positions.iter().zip(&mesh.colors) {
+        if (p.y - 0.2).abs() < 0.05 {
+            continue;
+        }
+        checked += 1;
+        let want = scene_colour(*p);
+        if (0..3).any(|i| c[i].abs_diff(want[i]) > 8) {
+            wrong += 1;
+        }
+    }
+    // Measured 1.3 % off by more than 8 levels: at the table's edges, where
+    // voxels in front of the floor also took its colour (as in Open3D). A
+    // colour averaged with black where a voxel was first seen as free space
+    // left 12 % too dark.
+    assert!(checked > 1000);
+    assert!(
+        wrong * 50 <= checked,
+        "{wrong} of {checked} vertices in the wrong colour"
+    );
     std::fs::remove_dir_all(dir).unwrap();
 }
 
@@ -353,12 +450,16 @@ fn voxel_planes_follow_the_run_contract() {
     let voxels = summary["voxels"].as_u64().unwrap();
     assert!(voxels > 1000);
     assert!(summary["planar_voxels"].as_u64().unwrap() > voxels / 2);
-    // 10 floats of 4 bytes per voxel, as the paper counts.
-    assert_eq!(
-        summary["representation_bytes"].as_u64().unwrap(),
-        voxels * 40
-    );
-    assert!(summary["surface_within_2cm"].as_f64().unwrap() > 0.95);
+    // The paper's accounting (10 floats a voxel) cannot exceed what the
+    // map really holds.
+    let counted = summary["representation_bytes"].as_u64().unwrap();
+    assert!(counted > 0 && counted <= summary["map_bytes"].as_u64().unwrap());
+    // Measured 99.89 % within 2 cm and 99.34 % within 1 cm (the README's
+    // 30-iteration run: 99.92 % and 99.3 %); the bounds let the share
+    // beyond grow about 1.5 to 2.5 times.
+    let within = |key: &str| summary[key].as_f64().unwrap();
+    assert!(within("surface_within_2cm") > 0.997, "{summary}");
+    assert!(within("surface_within_1cm") > 0.99, "{summary}");
     assert!(sim.join("view.png").is_file() && sim.join("scene.ply").is_file());
     let mesh = depthmesh::mesh::io::read_mesh(&sim.join("mesh.ply")).unwrap();
     assert!(mesh.triangle_count() > 1000);
@@ -460,6 +561,14 @@ fn the_study_writes_its_plots_and_table() {
     }
     let csv = std::fs::read_to_string(out.join("study.csv")).unwrap();
     assert_eq!(csv.lines().count(), 1 + 2 * 2, "{csv}");
+    // Beside the paper's accounting, what each map really holds, never less.
+    let header: Vec<&str> = csv.lines().next().unwrap().split(',').collect();
+    let column = |name: &str| header.iter().position(|h| *h == name).unwrap();
+    let (counted, held) = (column("representation_bytes"), column("map_bytes"));
+    for row in csv.lines().skip(1) {
+        let cells: Vec<u64> = row.split(',').map(|c| c.parse().unwrap_or(0)).collect();
+        assert!(cells[counted] > 0 && cells[held] >= cells[counted], "{row}");
+    }
     let bad = depthmesh(&["study", "--voxels", "0", "--quiet", "--out", o]);
     assert_fails_with(&bad, &["--voxels"]);
     std::fs::remove_dir_all(out).unwrap();

@@ -3,7 +3,7 @@
 
 mod common;
 
-use common::{assert_fails_with, depthmesh, ok, scratch, summary};
+use common::{assert_fails_with, depthmesh, eval_json, ok, scratch, summary};
 use serde_json::Value;
 
 #[test]
@@ -33,6 +33,8 @@ fn a_noisy_simulated_sequence_is_tracked_within_a_centimetre() {
     assert_eq!(s["tracking"], true);
     assert_eq!(s["lost"], 0, "{s}");
     let ate = s["ate_rmse_cm"].as_f64().unwrap();
+    // Measured 0.89 cm (0.86–0.92 cm across recent tracker versions): the
+    // bound is an eighth above it.
     assert!(ate < 1.0, "ATE {ate} cm");
     let stats = std::fs::read_to_string(out.join("stats.csv")).unwrap();
     assert!(stats
@@ -40,18 +42,58 @@ fn a_noisy_simulated_sequence_is_tracked_within_a_centimetre() {
         .next()
         .unwrap()
         .ends_with(",conditioning,lost,icp_iterations"));
-    // The evaluation command agrees with the summary.
-    let eval = depthmesh(&[
-        "eval",
-        "trajectory",
-        out.join("trajectory.txt").to_str().unwrap(),
-        out.join("groundtruth.txt").to_str().unwrap(),
-        "--json",
-    ]);
-    ok(&eval);
-    let e: Value = serde_json::from_slice(&eval.stdout).unwrap();
+    let e = eval_json(&out.join("trajectory.txt"), &out.join("groundtruth.txt"));
     assert_eq!(e["matched"], 20);
-    assert!((e["ate_rmse_cm"].as_f64().unwrap() - ate).abs() < 1e-3);
+    // Drift: the error grows along the line, from 3 mm at the second frame
+    // to 1.38 cm at the last (measured); a bound 15 % above that fails a
+    // tracker that drifts faster even while its RMSE stays under 1 cm.
+    let worst = e["ate_max_cm"].as_f64().unwrap();
+    assert!(worst < 1.6, "the camera drifted {worst} cm from its path");
+    // The trajectory's shape, rigidly aligned: measured 0.25 cm.
+    let aligned = e["ate_rmse_aligned_cm"].as_f64().unwrap();
+    assert!(aligned < 0.3, "aligned ATE {aligned} cm");
+    std::fs::remove_dir_all(dir).unwrap();
+}
+
+/// Asserts `e[key]` is `want` to within 1e-3.
+fn assert_near(e: &Value, key: &str, want: f64) {
+    let got = e[key].as_f64().unwrap();
+    assert!(
+        (got - want).abs() < 1e-3,
+        "{key} {got}, expected {want}: {e}"
+    );
+}
+
+#[test]
+fn eval_measures_a_known_offset_in_centimetres() {
+    // A reference turning and moving, and an estimate 3 cm beside it
+    // along x, one frame short: a raw error of exactly 3 cm at every pose,
+    // nothing after a rigid alignment, no relative error.
+    let dir = scratch("eval-offset");
+    let line = |t: usize, dx: f32| {
+        let a = 0.1 * t as f32;
+        let (s, c) = (a / 2.0).sin_cos();
+        format!("{t} {} {} 0.5 0 {s} 0 {c}\n", 0.2 * t as f32 + dx, a.sin())
+    };
+    let reference: String = (0..10).map(|t| line(t, 0.0)).collect();
+    let estimate: String = (0..9).map(|t| line(t, 0.03)).collect();
+    std::fs::write(dir.join("ref.txt"), reference).unwrap();
+    std::fs::write(dir.join("est.txt"), estimate).unwrap();
+    let e = eval_json(&dir.join("est.txt"), &dir.join("ref.txt"));
+    assert_eq!(e["matched"], 9);
+    assert_near(&e, "ate_rmse_cm", 3.0);
+    assert_near(&e, "ate_max_cm", 3.0);
+    assert_near(&e, "ate_rmse_aligned_cm", 0.0);
+    assert_near(&e, "rpe_translation_mm", 0.0);
+    assert_near(&e, "rpe_rotation_deg", 0.0);
+    // One pose 6 cm off instead: RMSE √((8·3² + 6²) / 9) = √12 cm, max 6 cm.
+    let bumped: String = (0..9)
+        .map(|t| line(t, if t == 4 { 0.06 } else { 0.03 }))
+        .collect();
+    std::fs::write(dir.join("est.txt"), bumped).unwrap();
+    let e = eval_json(&dir.join("est.txt"), &dir.join("ref.txt"));
+    assert_near(&e, "ate_rmse_cm", 12f64.sqrt());
+    assert_near(&e, "ate_max_cm", 6.0);
     std::fs::remove_dir_all(dir).unwrap();
 }
 

@@ -45,30 +45,50 @@ fn noise_free_table_is_accurate_compact_and_levels_off() {
     let scene = Scene::parse(TABLE, "table.toml".as_ref(), &SceneOptions::default()).unwrap();
     let mut sensor = SimulatedSensor::kinect(NoiseModel::None, 0);
     let (mut naive_total, mut after_first_turn) = (0, 0);
+    // M only grows: each iteration's mesh starts with the last one's, unchanged.
+    let mut previous = Mesh::default();
+    let mut changed = Vec::new();
     let mut mapper = run(&scene, &mut sensor, 30, |i, m, naive| {
         naive_total += naive;
         if i == 15 {
             after_first_turn = m.stats().elements;
         }
+        let mesh = m.mesh();
+        let (n, v) = (previous.triangle_count(), previous.vertex_count());
+        if mesh.triangles.get(..n) != Some(&previous.triangles[..])
+            || mesh.positions.get(..v) != Some(&previous.positions[..])
+        {
+            changed.push(i);
+        }
+        previous = mesh.clone();
     });
+    assert!(
+        changed.is_empty(),
+        "without noise nothing may be removed, but M lost elements at iterations {changed:?}"
+    );
     let final_count = mapper.stats().elements;
     let truth = scene.world_mesh(30).0;
     let within = fraction_within(mapper.mesh(), &truth, 0.005, 0.01).unwrap();
+    // Measured 99.997 % (the README's 99.996 %): the bound lets three times
+    // as much surface stray beyond 5 mm, and no more.
     assert!(
-        within >= 0.95,
-        "only {:.1}% of the mesh within 5 mm",
+        within >= 0.9999,
+        "only {:.4}% of the mesh within 5 mm",
         within * 100.0
     );
+    // Measured 4.6 % (as in the README); 5.5 % is a fifth above it.
     let second_turn = (final_count - after_first_turn) as f64 / final_count as f64;
     assert!(
-        second_turn < 0.10,
-        "second turn added {:.1}%",
+        second_turn < 0.055,
+        "second turn added {:.2}%",
         second_turn * 100.0
     );
+    // Measured 5.8 % of the traditional method (as in the README); 6.5 % is
+    // an eighth above it.
     let ratio = final_count as f64 / naive_total as f64;
     assert!(
-        ratio < 0.25,
-        "{final_count} elements is {:.1}% of naive",
+        ratio < 0.065,
+        "{final_count} elements is {:.2}% of naive",
         ratio * 100.0
     );
 }
@@ -164,12 +184,18 @@ fn removed_object_leaves_the_map_and_the_rest_stays() {
         peak > 1000,
         "the object was never mapped ({peak} triangles)"
     );
-    let after_five = remaining[4];
+    // Two contradictions remove a triangle, so most of the object is gone
+    // two iterations after the removal. Three iterations after it, 1.9 % is
+    // left (measured), on sides the sensor does not see again until it comes
+    // round: the bound of 3 % fails if removal takes one iteration longer
+    // (5 % is left one iteration earlier).
+    let after_three = remaining[3];
     assert!(
-        after_five * 20 <= peak,
-        "{after_five} of {peak} triangles of the removed object left after five iterations ({remaining:?})"
+        after_three * 100 <= peak * 3,
+        "{after_three} of {peak} triangles of the removed object left three iterations after it ({remaining:?})"
     );
-    // The rest is removed as soon as the sensor comes round to see it.
+    // The rest is removed as soon as the sensor comes round to see it
+    // (measured 0.9 %).
     let at_end = *remaining.last().unwrap();
     assert!(
         at_end * 100 <= peak,

@@ -137,12 +137,27 @@ fn incremental_meshing_equals_full_extraction() {
         let mut full = MeshCache::new(min_weight);
         full.update(&volume);
         assert_eq!(incremental.assemble(), full.assemble());
-        // A frame that changes nothing re-meshes nothing.
-        let k = Intrinsics::from_vertical_fov(16, 12, 60.0);
-        volume
-            .integrate(&DepthImage::new(16, 12), None, &k, &Pose::IDENTITY)
-            .unwrap();
-        assert_eq!(incremental.update(&volume), 0);
+        // A frame elsewhere (a wall behind the camera's back, far from the
+        // sphere) re-meshes the blocks it reaches and not one of the sphere's.
+        let before = volume.blocks().len();
+        let k = Intrinsics::from_vertical_fov(32, 24, 60.0);
+        let mut wall = DepthImage::new(32, 24);
+        wall.data.fill(1.0);
+        let away = Pose::look_at(
+            Vec3::new(0.0, 0.0, -1.5),
+            Vec3::new(0.0, 0.0, -3.0),
+            Vec3::Y,
+        );
+        volume.integrate(&wall, None, &k, &away).unwrap();
+        let added = volume.blocks().len() - before;
+        let remeshed = incremental.update(&volume);
+        assert!(
+            remeshed > 0 && remeshed <= added,
+            "{remeshed} blocks re-meshed for {added} new ones"
+        );
+        let mut full = MeshCache::new(min_weight);
+        full.update(&volume);
+        assert_eq!(incremental.assemble(), full.assemble());
     }
 }
 
@@ -176,7 +191,7 @@ fn ray_casting_sees_the_fused_sphere() {
     let pose = Pose::look_at(Vec3::new(0.3, 0.2, -1.0), Vec3::ZERO, Vec3::Y);
     let mut image = depthmesh::tsdf::raycast::RaycastImage::default();
     volume.raycast(&k, &pose, 0.1, 3.0, &mut image);
-    let (mut errors, mut misses) = (Vec::new(), 0);
+    let (mut errors, mut misses, mut holes) = (Vec::new(), 0, 0);
     for v in 0..k.height {
         for u in 0..k.width {
             let i = (v * k.width + u) as usize;
@@ -190,12 +205,19 @@ fn ray_casting_sees_the_fused_sphere() {
                         "normal at ({u},{v})"
                     );
                 }
-                (Some(_), _) | (None, _) if image.depth.data[i] == 0.0 => {}
-                _ => misses += 1,
+                (Some(_), _) => holes += 1,
+                (None, got) if got > 0.0 => misses += 1,
+                (None, _) => {}
             }
         }
     }
     assert!(errors.len() > 400, "{} hits", errors.len());
+    // The fused rim is a little blurred: a ray grazing the sphere may pass
+    // it by. Measured 1 of 492 pixels that see the sphere; the bound is 1 %.
+    assert!(
+        holes * 100 < errors.len(),
+        "{holes} pixels see nothing where the sphere is"
+    );
     // A few silhouette pixels may catch the fused surface's slightly blurred rim.
     assert!(
         misses * 50 < errors.len(),

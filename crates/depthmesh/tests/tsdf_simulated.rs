@@ -21,9 +21,19 @@ fn noisy_table_scan_is_within_a_centimetre() {
     }
     let truth = scene.world_mesh(20).0;
     let within = fraction_within(mapper.mesh(), &truth, 0.01, 0.01).unwrap();
+    // Measured 99.2 % at this resolution (99.7 % at 640×480 in the README):
+    // the bound lets the share beyond 1 cm grow by half, and no more.
     assert!(
-        within >= 0.95,
+        within >= 0.988,
         "{:.1}% of the mesh within 1 cm",
         within * 100.0
+    );
+    // Measured 89.8 % within 5 mm (94.9 % at 640×480): a surface fused 4 mm
+    // off (86.9 %) fails the bound of 88.5 %.
+    let within_5mm = fraction_within(mapper.mesh(), &truth, 0.005, 0.01).unwrap();
+    assert!(
+        within_5mm >= 0.885,
+        "{:.1}% of the mesh within 5 mm",
+        within_5mm * 100.0
     );
 }

@@ -201,9 +201,22 @@ mod tests {
 
     #[test]
     fn text_off_canvas_is_clipped() {
+        // What falls on the canvas is the same window of the text drawn whole.
         let mut c = Canvas::new(10, 10, WHITE);
         draw_text_aligned(&mut c, -30, 3, "clipped text", 2, BLACK, Align::Left);
-        draw_text_aligned(&mut c, i32::MAX, i32::MIN, "far", 3, BLACK, Align::Left);
-        draw_text_vertical(&mut c, 2, i32::MIN, "far", 1, BLACK);
+        let mut whole = Canvas::new(text_width("clipped text", 2) + 10, 30, WHITE);
+        draw_text_aligned(&mut whole, 0, 3, "clipped text", 2, BLACK, Align::Left);
+        assert!(ink_bounds(&c).is_some());
+        for y in 0..10 {
+            for x in 0..10 {
+                assert_eq!(c.get(x, y), whole.get(x + 30, y), "pixel ({x}, {y})");
+            }
+        }
+        // Text far outside draws nothing (no wrap-around at the integer limits).
+        let mut far = Canvas::new(10, 10, WHITE);
+        draw_text_aligned(&mut far, i32::MAX, i32::MIN, "far", 3, BLACK, Align::Left);
+        draw_text_aligned(&mut far, i32::MIN, 0, "far", 3, BLACK, Align::Right);
+        draw_text_vertical(&mut far, 2, i32::MIN, "far", 1, BLACK);
+        assert_eq!(ink_bounds(&far), None);
     }
 }

@@ -38,6 +38,7 @@ pub fn summary(out: &std::path::Path) -> serde_json::Value {
 }
 
 /// The command failed with a message containing every one of `needles`, and no panic.
+#[allow(dead_code)] // not every test file needs it
 pub fn assert_fails_with(output: &Output, needles: &[&str]) {
     let stderr = String::from_utf8_lossy(&output.stderr);
     assert!(
@@ -50,16 +51,44 @@ pub fn assert_fails_with(output: &Output, needles: &[&str]) {
     }
 }
 
+/// The table scene the tests simulate.
+#[allow(dead_code)] // not every test file needs it
+pub fn table_scene() -> depthmesh::sim::Scene {
+    let options = depthmesh::sim::SceneOptions::default();
+    depthmesh::sim::Scene::load(Path::new("../../scenes/table.toml"), &options).unwrap()
+}
+
+/// The colour the frames folder gives a point of the table scene: the
+/// floor and the bottom of the legs red, everything higher green.
+#[allow(dead_code)] // not every test file needs it
+pub fn scene_colour(p: glam::Vec3) -> [u8; 3] {
+    if p.y < 0.2 {
+        [200, 40, 40]
+    } else {
+        [40, 200, 40]
+    }
+}
+
+/// Writes an 8-bit RGB PNG.
+#[allow(dead_code)] // not every test file needs it
+pub fn write_rgb_png(path: &Path, width: u32, height: u32, rgb: &[u8]) {
+    let mut encoder = png::Encoder::new(std::fs::File::create(path).unwrap(), width, height);
+    encoder.set_color(png::ColorType::Rgb);
+    encoder.set_depth(png::BitDepth::Eight);
+    encoder
+        .write_header()
+        .unwrap()
+        .write_image_data(rgb)
+        .unwrap();
+}
+
 /// A 7-Scenes style frames folder of the simulated table, 160×120,
-/// `frames` frames along the helix.
+/// `frames` frames along the helix: depth, poses, and colour by [`scene_colour`] (black where the
+/// sensor sees nothing).
 #[allow(dead_code)] // not every test file needs it
 pub fn simulated_frames_folder(dir: &Path, frames: u32) {
-    use depthmesh::sim::{NoiseModel, PathSpec, Scene, SceneOptions, SimulatedSensor};
-    let scene = Scene::load(
-        Path::new("../../scenes/table.toml"),
-        &SceneOptions::default(),
-    )
-    .unwrap();
+    use depthmesh::sim::{NoiseModel, PathSpec, SimulatedSensor};
+    let scene = table_scene();
     let k = depthmesh::Intrinsics::from_vertical_fov(160, 120, 60.0);
     let mut sensor = SimulatedSensor::new(k, 0.8, 4.0, NoiseModel::None, 0).unwrap();
     std::fs::write(
@@ -89,6 +118,16 @@ pub fn simulated_frames_folder(dir: &Path, frames: u32) {
             .unwrap()
             .write_image_data(&mm)
             .unwrap();
+        let rgb: Vec<u8> = (0..k.height)
+            .flat_map(|v| (0..k.width).map(move |u| (u, v)))
+            .zip(&frame.depth.data)
+            .flat_map(|((u, v), &d)| match d > 0.0 {
+                true => scene_colour(pose.transform_point(k.back_project(u as f32, v as f32, d))),
+                false => [0; 3],
+            })
+            .collect();
+        let colour = dir.join(format!("frame-{i:06}.color.png"));
+        write_rgb_png(&colour, k.width, k.height, &rgb);
         let r = pose.rotation;
         let t = pose.translation;
         let rows: Vec<String> = (0..3)
@@ -105,4 +144,19 @@ pub fn simulated_frames_folder(dir: &Path, frames: u32) {
             .collect();
         std::fs::write(dir.join(format!("frame-{i:06}.pose.txt")), rows.join("\n")).unwrap();
     }
+}
+
+/// `eval trajectory --json` of `estimate` against `reference` (a TUM file
+/// or a dataset folder), which must succeed.
+#[allow(dead_code)] // not every test file needs it
+pub fn eval_json(estimate: &std::path::Path, reference: &std::path::Path) -> serde_json::Value {
+    let eval = depthmesh(&[
+        "eval",
+        "trajectory",
+        estimate.to_str().unwrap(),
+        reference.to_str().unwrap(),
+        "--json",
+    ]);
+    ok(&eval);
+    serde_json::from_slice(&eval.stdout).unwrap()
 }

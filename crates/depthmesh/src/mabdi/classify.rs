@@ -93,7 +93,7 @@ pub fn classify(
                     continue; // stays Invalid
                 }
                 let jump = boundary.at(d);
-                let differs = |n: f32| n > 0.0 && (d - n).abs() > jump;
+                let differs = |n: f32| n > 0.0 && n < f32::INFINITY && (d - n).abs() > jump;
                 row[c] = if (c > 0 && differs(d_row[c - 1])) || up.is_some_and(|u| differs(u[c])) {
                     PixelClass::Boundary
                 } else {

@@ -101,27 +101,33 @@ pub struct Simplified {
 /// only add work.
 const PARALLEL_MIN_TRIANGLES: usize = 50_000;
 
+/// Chunks a large mesh is split into: a constant, not the thread count, so
+/// the result is the same whatever the pool size. More chunks lock more
+/// seam vertices in the first pass: on a 250k-triangle TSDF mesh of the
+/// kitchen at 10 %, 4 chunks left a 3 % and 8 chunks a 5 % larger mean
+/// distance to the input than 2 (0.86 mm).
+const CHUNKS: usize = 2;
+
 /// Welds `mesh` (see [`weld`]) and simplifies it.
 ///
-/// A large mesh with a triangle target is simplified on all threads: it is
-/// split into one chunk per thread, the chunks are simplified to twice the
+/// A large mesh with a triangle target is simplified in parallel: it is
+/// split into [`CHUNKS`] chunks, the chunks are simplified to 1.5 times the
 /// target ratio with their seams locked, and a last pass over the joined
-/// result, a fifth of the input's size at a 10 % target, reaches the target
+/// result, 15 % of the input's size at a 10 % target, reaches the target
 /// and dissolves the seams. With an error bound it runs as one pass, since two
-/// passes could add their errors.
+/// passes could add their errors. The output does not depend on the number
+/// of threads.
 pub fn simplify(mesh: &Mesh, params: &SimplifyParams) -> Result<Simplified> {
     params.validate()?;
     let mesh = weld(mesh);
-    let threads = rayon::current_num_threads();
     let target = params.target_triangles(mesh.triangle_count());
-    if threads < 2
-        || mesh.triangle_count() < PARALLEL_MIN_TRIANGLES
+    if mesh.triangle_count() < PARALLEL_MIN_TRIANGLES
         || params.max_error.is_some()
         || target >= mesh.triangle_count()
     {
         return simplify_locked(&mesh, &[], params);
     }
-    let chunks = split_by_triangles(&mesh, mesh.triangle_count().div_ceil(threads));
+    let chunks = split_by_triangles(&mesh, mesh.triangle_count().div_ceil(CHUNKS));
     // The first pass stops at 1.5 times the target: the last pass, over the
     // whole surface, then picks the cheapest collapses everywhere, which
     // measured a lower mean error on a TSDF mesh (0.62 against 0.69 mm).

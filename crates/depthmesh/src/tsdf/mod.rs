@@ -91,6 +91,13 @@ pub struct Block {
     pub color: Option<Box<[[u8; 3]; BLOCK_VOXELS]>>,
 }
 
+/// Whether a depth value is a measurement: positive and finite. NaN or an
+/// infinity handed in by a caller counts as none, like 0.
+#[inline]
+fn measured(d: f32) -> bool {
+    d > 0.0 && d < f32::INFINITY
+}
+
 /// Index of voxel `(x, y, z)` inside a block.
 #[inline]
 pub fn voxel_index(x: usize, y: usize, z: usize) -> usize {
@@ -209,8 +216,9 @@ impl TsdfVolume {
         (key * BLOCK as i32).as_vec3() * v + Vec3::new(x as f32, y as f32, z as f32) * v
     }
 
-    /// Fuses one depth image (metres, 0 = none) taken from `pose`, and its
-    /// colour image (same camera) when the volume keeps colour.
+    /// Fuses one depth image (metres; 0, NaN or an infinity = none) taken
+    /// from `pose`, and its colour image (same camera) when the volume keeps
+    /// colour.
     pub fn integrate(
         &mut self,
         depth: &DepthImage,
@@ -285,7 +293,11 @@ impl TsdfVolume {
         // Blocks are 8 voxels wide, so sampling every few pixels and every
         // half block along the band cannot miss one: the gap between sampled
         // rays, at most `(max depth + truncation) · step / f`, stays below half a block.
-        let farthest = depth.data.iter().fold(0.0f32, |m, &d| m.max(d)) + c.truncation;
+        let farthest = depth
+            .data
+            .iter()
+            .fold(0.0f32, |m, &d| if measured(d) { m.max(d) } else { m })
+            + c.truncation;
         let step =
             ((0.5 * block_size * k.fx.min(k.fy) / farthest.max(1e-3)).floor() as usize).clamp(1, 8);
         let w = depth.width as usize;
@@ -296,7 +308,7 @@ impl TsdfVolume {
                 let mut keys = Vec::new();
                 for col in (0..w).step_by(step) {
                     let d = depth.data[r * w + col];
-                    if d <= 0.0 {
+                    if !measured(d) {
                         continue;
                     }
                     let ray = pose.transform_vector(k.back_project(col as f32, r as f32, 1.0));
@@ -425,7 +437,7 @@ fn integrate_block(
                 let sdf = d - depth_z[x];
                 // One branch for the three reasons to leave a voxel alone:
                 // which of them applies is hard to predict.
-                if !(inside[x] & (d > 0.0) & (sdf >= -c.truncation)) {
+                if !(inside[x] & measured(d) & (sdf >= -c.truncation)) {
                     continue;
                 }
                 let t = (sdf * inv_trunc).min(1.0);
@@ -440,16 +452,17 @@ fn integrate_block(
                 block.tsdf[i] = new;
                 block.weight[i] = (wt + 1).min(c.max_weight);
                 let mut seen = new != old || wt == 0;
-                // Colour only near the surface, where it belongs to it.
+                // Colour is averaged with the distance's own weight, so it
+                // must be fused whenever the distance is (as Open3D does):
+                // fused only near the surface, a voxel first seen as free
+                // space would average its first colour with black.
                 if let (Some(colors), Some(image)) = (block.color.as_deref_mut(), color) {
-                    if sdf.abs() < c.truncation {
-                        let (old, new) = (colors[i], image.data[px]);
-                        colors[i] = std::array::from_fn(|ch| {
-                            let o = f32::from(old[ch]);
-                            (o + (f32::from(new[ch]) - o) * reciprocal[usize::from(wt)] + 0.5) as u8
-                        });
-                        seen |= colors[i] != old;
-                    }
+                    let (old, new) = (colors[i], image.data[px]);
+                    colors[i] = std::array::from_fn(|ch| {
+                        let o = f32::from(old[ch]);
+                        (o + (f32::from(new[ch]) - o) * reciprocal[usize::from(wt)] + 0.5) as u8
+                    });
+                    seen |= colors[i] != old;
                 }
                 readers |= readers_of[i] & 0u8.wrapping_sub(u8::from(seen));
                 weights = true;
