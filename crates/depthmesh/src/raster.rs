@@ -465,6 +465,36 @@ impl Rasterizer {
         any
     }
 
+    /// After a render of `triangles`, calls `visit` on every triangle of the
+    /// chunks that render had in view, with its projected corners (see
+    /// [`Rasterizer::screen_points`]) and its byte of `state`: a second
+    /// per-triangle pass for evidence that needs the finished image.
+    /// Returns whether any visit returned true; visits nothing if
+    /// `triangles` is not what was rendered last.
+    pub fn visit_in_view<F>(&self, triangles: &[[u32; 3]], state: &mut [u8], visit: F) -> bool
+    where
+        F: Fn(&mut u8, &[[f32; 3]; 3]) -> bool + Sync,
+    {
+        let chunks = triangles.len().div_ceil(CHUNK_TRIANGLES);
+        if self.chunk_visible.len() != chunks || state.len() != triangles.len() {
+            return false;
+        }
+        let screen = &self.screen_points;
+        state
+            .par_chunks_mut(CHUNK_TRIANGLES)
+            .zip(triangles.par_chunks(CHUNK_TRIANGLES))
+            .zip(self.chunk_visible.par_iter())
+            .filter(|(_, &visible)| visible)
+            .map(|((state, tris), _)| {
+                let mut any = false;
+                for (s, t) in state.iter_mut().zip(tris) {
+                    any |= visit(s, &t.map(|v| screen[v as usize]));
+                }
+                any
+            })
+            .reduce(|| false, |a, b| a || b)
+    }
+
     /// Makes the first `count` layers hold `pixels` zero keys. The merge
     /// leaves layers cleared, so this normally only checks sizes.
     fn prepare_layers(&mut self, count: usize, pixels: usize) {

@@ -8,6 +8,7 @@
 //! sensor sees through are removed ([`removal`]). [`NaiveMapper`] is the
 //! thesis's "traditional method" that appends every frame's whole surface.
 
+pub mod absence;
 pub mod classify;
 pub mod mesher;
 pub mod removal;
@@ -19,6 +20,7 @@ use crate::map::{IntegrateReport, MapStats, Mapper};
 use crate::mesh::Mesh;
 use crate::palette::iteration_color;
 use crate::raster::{render_mesh_depth, ChunkBounds, Geometry, Rasterizer, RenderTarget};
+use absence::MissingReturns;
 use classify::{classify, PixelClass, Threshold};
 use mesher::DepthMesher;
 use removal::Carver;
@@ -43,6 +45,9 @@ pub struct RemovalConfig {
     pub threshold: Threshold,
     /// Contradicting frames, without a confirmation between them, that remove a triangle.
     pub frames: u8,
+    /// Also count missing returns on surface that is seen through elsewhere
+    /// ([`absence`](mod@absence)); `None` needs a measurement beyond every triangle.
+    pub missing: Option<MissingReturns>,
 }
 
 impl Threshold {
@@ -76,6 +81,21 @@ impl MabdiConfig {
             if r.frames == 0 {
                 return Err(Error::parameter("removal frames", "must be at least 1"));
             }
+            if let Some(m) = r.missing {
+                let [lo, hi] = m.range;
+                if !(lo > 0.0 && hi > lo && hi.is_finite()) {
+                    return Err(Error::parameter(
+                        "missing-return range",
+                        format!("need 0 < near < far metres, got {lo}..{hi}"),
+                    ));
+                }
+                if m.seeds == 0 {
+                    return Err(Error::parameter(
+                        "missing-return seeds",
+                        "must be at least 1",
+                    ));
+                }
+            }
         }
         Ok(())
     }
@@ -85,7 +105,11 @@ impl MabdiConfig {
     /// 0.005 in normalised depth (≈ 0.005·z² m, 2.5σ of the thesis's noise)
     /// beyond a triangle at all nine pixels around it, in two frames: half the
     /// novelty threshold, so that objects standing on others lose all but
-    /// their last few centimetres of contact at once.
+    /// their last few centimetres of contact at once. Missing returns count
+    /// between 1.1·near and 0.875·far (0.88–3.5 m for 0.8–4 m: 15σ of the
+    /// thesis's noise inside the far limit) on regions with 16 solidly
+    /// seen-through pixels (a 4×4 patch; 2.6 mm² at 1 m, so any object the
+    /// sensor can map shows that much somewhere once it is gone).
     pub fn thesis(intrinsics: Intrinsics, near: f32, far: f32) -> Self {
         let t = Threshold::thesis(near, far);
         MabdiConfig {
@@ -99,6 +123,10 @@ impl MabdiConfig {
                     far,
                 },
                 frames: 2,
+                missing: Some(MissingReturns {
+                    range: [1.1 * near, 0.875 * far],
+                    seeds: 16,
+                }),
             }),
         }
     }
@@ -236,7 +264,7 @@ impl Mapper for MabdiMapper {
             triangles: &self.mesh.triangles,
             chunks: Some(&self.chunks),
         };
-        let to_remove = match self.config.removal {
+        let mut to_remove = match self.config.removal {
             Some(removal) => {
                 let (votes, evidence) = self.carver.prepare(
                     &frame.depth,
@@ -265,6 +293,29 @@ impl Mapper for MabdiMapper {
             ),
         };
         let render_ms = lap();
+        let mut vanishing = false;
+        if let Some(
+            removal @ RemovalConfig {
+                missing: Some(missing),
+                ..
+            },
+        ) = self.config.removal
+        {
+            let (votes, absence) = self.carver.absence(
+                &self.expected.depth,
+                removal.threshold,
+                self.config.boundary,
+                &missing,
+                removal.frames,
+            );
+            if let Some(absence) = absence {
+                vanishing = true;
+                to_remove |= self
+                    .rasterizer
+                    .visit_in_view(&self.mesh.triangles, votes, |v, s| absence.judge(v, s));
+            }
+        }
+        let absence_ms = lap();
         let novel_pixels = classify(
             &frame.depth,
             &self.expected.depth,
@@ -300,6 +351,8 @@ impl Mapper for MabdiMapper {
                 ("novel_pixels", novel_pixels as f64),
                 ("naive_elements", naive as f64),
                 ("render_ms", render_ms),
+                ("absence_ms", absence_ms),
+                ("vanishing", vanishing as u8 as f64),
                 ("classify_ms", classify_ms),
                 ("removal_ms", removal_ms),
                 ("mesh_ms", mesh_ms),
