@@ -558,6 +558,15 @@ impl ChunkBounds {
         self.counted = triangles.len();
     }
 
+    /// Forgets the boxes of the chunks from the one holding triangle `first`
+    /// on, for when the triangles from `first` on were replaced.
+    pub fn truncate(&mut self, first: usize) {
+        let chunk = (first / CHUNK_TRIANGLES).min(self.boxes.len());
+        self.boxes.truncate(chunk);
+        self.vertex_ranges.truncate(chunk);
+        self.counted = self.counted.min(chunk * CHUNK_TRIANGLES);
+    }
+
     /// Forgets all boxes, for when triangles were removed or reordered.
     pub fn clear(&mut self) {
         self.boxes.clear();

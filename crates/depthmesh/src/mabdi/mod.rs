@@ -12,6 +12,7 @@ pub mod absence;
 pub mod classify;
 pub mod mesher;
 pub mod removal;
+pub mod settle;
 
 use crate::camera::{Intrinsics, Pose};
 use crate::error::{Error, Result};
@@ -24,6 +25,7 @@ use absence::MissingReturns;
 use classify::{classify, PixelClass, Threshold};
 use mesher::DepthMesher;
 use removal::Carver;
+use settle::{Patches, Settling};
 
 /// Parameters of mesh addition.
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -36,6 +38,9 @@ pub struct MabdiConfig {
     pub boundary: Threshold,
     /// Remove triangles the sensor sees through; `None` keeps everything (the thesis).
     pub removal: Option<RemovalConfig>,
+    /// Simplify surface that has settled ([`settle`]); `None` keeps the
+    /// depth-image grid triangles as they were added (the thesis).
+    pub settling: Option<Settling>,
 }
 
 /// Parameters of object removal (see [`removal`]).
@@ -76,6 +81,23 @@ impl MabdiConfig {
         self.intrinsics.validate()?;
         self.novelty.validate("novelty threshold")?;
         self.boundary.validate("boundary threshold")?;
+        if let Some(s) = self.settling {
+            if s.after == 0 {
+                return Err(Error::parameter(
+                    "settling iterations",
+                    "must be at least 1",
+                ));
+            }
+            if !(s.error > 0.0 && s.error < 1.0) {
+                return Err(Error::parameter(
+                    "settling error",
+                    format!(
+                        "must be a fraction of the novelty threshold in (0, 1), got {}",
+                        s.error
+                    ),
+                ));
+            }
+        }
         if let Some(r) = self.removal {
             r.threshold.validate("removal threshold")?;
             if r.frames == 0 {
@@ -110,6 +132,8 @@ impl MabdiConfig {
     /// thesis's noise inside the far limit) on regions with 16 solidly
     /// seen-through pixels (a 4×4 patch; 2.6 mm² at 1 m, so any object the
     /// sensor can map shows that much somewhere once it is gone).
+    /// Surface unchanged for 3 iterations is simplified to 0.2·τ(z), σ of
+    /// the thesis's noise.
     pub fn thesis(intrinsics: Intrinsics, near: f32, far: f32) -> Self {
         let t = Threshold::thesis(near, far);
         MabdiConfig {
@@ -128,6 +152,10 @@ impl MabdiConfig {
                     seeds: 16,
                 }),
             }),
+            settling: Some(Settling {
+                after: 3,
+                error: 0.2,
+            }),
         }
     }
 }
@@ -143,6 +171,8 @@ pub struct MabdiMapper {
     classes: Vec<PixelClass>,
     mesher: DepthMesher,
     carver: Carver,
+    /// M's triangles by the iteration that added them, for simplification.
+    patches: Patches,
     /// Boxes of M's triangle chunks, so E skips what is out of view.
     chunks: ChunkBounds,
 }
@@ -190,6 +220,8 @@ impl MabdiMapper {
         }
         let mut chunks = ChunkBounds::default();
         chunks.extend(&mesh.positions, &mesh.triangles);
+        let mut patches = Patches::default();
+        patches.start(mesh.triangle_count());
         Ok(MabdiMapper {
             config,
             mesh,
@@ -199,6 +231,7 @@ impl MabdiMapper {
             classes: Vec::new(),
             mesher: DepthMesher::new(),
             carver: Carver::default(),
+            patches,
             chunks,
         })
     }
@@ -224,6 +257,7 @@ impl MabdiMapper {
         let before = self.mesh.triangles.len();
         let mut index = 0;
         let votes = &self.carver.votes;
+        self.patches.removed(self.iteration, |t| votes[t] < frames);
         self.mesh.triangles.retain(|_| {
             index += 1;
             votes[index - 1] < frames
@@ -341,9 +375,24 @@ impl Mapper for MabdiMapper {
             pose,
             self.iteration,
         );
+        self.patches.added(added, pose, self.iteration);
+        let mesh_ms = lap();
+        let simplified = match &self.config.settling {
+            Some(settling) => self.patches.settle(
+                &mut self.mesh,
+                &mut self.carver.votes,
+                self.iteration,
+                settling,
+                self.config.novelty,
+            )?,
+            None => None,
+        };
+        if let Some(settled) = simplified {
+            self.chunks.truncate(settled.first);
+        }
         self.chunks
             .extend(&self.mesh.positions, &self.mesh.triangles);
-        let mesh_ms = lap();
+        let settle_ms = lap();
         Ok(IntegrateReport {
             new_elements: added,
             removed_elements: removed,
@@ -356,6 +405,11 @@ impl Mapper for MabdiMapper {
                 ("classify_ms", classify_ms),
                 ("removal_ms", removal_ms),
                 ("mesh_ms", mesh_ms),
+                (
+                    "simplified_elements",
+                    simplified.map_or(0, |s| s.fewer) as f64,
+                ),
+                ("settle_ms", settle_ms),
             ],
         })
     }
