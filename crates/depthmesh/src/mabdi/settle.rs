@@ -295,3 +295,78 @@ impl Group<'_> {
 fn corner_key(mesh: &Mesh, t: &[u32; 3]) -> [[u32; 3]; 3] {
     t.map(|v| mesh.positions[v as usize].to_array().map(f32::to_bits))
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use glam::Vec3;
+
+    /// A flat `n × n` grid 2 m in front of the identity pose, coloured by vertex.
+    fn grid(n: u32) -> Mesh {
+        let mut mesh = Mesh::default();
+        for r in 0..n {
+            for c in 0..n {
+                mesh.positions
+                    .push(Vec3::new(c as f32 * 0.004, r as f32 * 0.004, 2.0));
+                mesh.colors.push([(r % 7) as u8, (c % 5) as u8, 9]);
+            }
+        }
+        for r in 0..n - 1 {
+            for c in 0..n - 1 {
+                let i = r * n + c;
+                mesh.triangles.push([i, i + n, i + 1]);
+                mesh.triangles.push([i + 1, i + n, i + n + 1]);
+            }
+        }
+        mesh
+    }
+
+    #[test]
+    fn a_settled_patch_shrinks_keeping_colours_votes_and_outline() {
+        let mut mesh = grid(60);
+        let original = mesh.clone();
+        let mut votes = vec![0u8; mesh.triangle_count()];
+        votes[1000] = 1;
+        let voted = corner_key(&mesh, &mesh.triangles[1000]);
+        let mut patches = Patches::default();
+        patches.added(mesh.triangle_count(), &Pose::IDENTITY, 1);
+        let settling = Settling {
+            after: 3,
+            error: 0.2,
+        };
+        let t = Threshold::Metres(0.01);
+        let early = patches
+            .settle(&mut mesh, &mut votes, 3, &settling, t)
+            .unwrap();
+        assert_eq!(early, None, "not settled before `after` iterations");
+        let settled = patches
+            .settle(&mut mesh, &mut votes, 4, &settling, t)
+            .unwrap()
+            .unwrap();
+        assert_eq!(settled.first, 0);
+        assert_eq!(
+            settled.fewer,
+            original.triangle_count() - mesh.triangle_count()
+        );
+        // The outline (236 border vertices) is kept, the inside collapses.
+        assert!(mesh.triangle_count() < original.triangle_count() / 10);
+        mesh.check().unwrap();
+        assert_eq!(votes.len(), mesh.triangle_count());
+        let kept_vote: Vec<_> = (0..mesh.triangle_count())
+            .filter(|&i| votes[i] > 0)
+            .map(|i| corner_key(&mesh, &mesh.triangles[i]))
+            .collect();
+        assert_eq!(kept_vote, vec![voted], "the voted triangle keeps its vote");
+        // Kept vertices keep their colours and stay on the plane.
+        for (p, c) in mesh.positions.iter().zip(&mesh.colors) {
+            let i = original.positions.iter().position(|q| q == p);
+            let i = i.expect("a flat grid's vertices do not move");
+            assert_eq!(original.colors[i], *c);
+        }
+        // Settled once: nothing more to do.
+        let again = patches
+            .settle(&mut mesh, &mut votes, 10, &settling, t)
+            .unwrap();
+        assert_eq!(again, None);
+    }
+}
