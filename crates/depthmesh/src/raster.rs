@@ -538,22 +538,30 @@ pub struct ChunkBounds {
 }
 
 impl ChunkBounds {
-    /// Accounts for triangles appended since the last call (only those are read).
+    /// Accounts for triangles appended since the last call (only those, and
+    /// the rest of the last chunk, are read; chunks in parallel).
     pub fn extend(&mut self, positions: &[Vec3], triangles: &[[u32; 3]]) {
         if self.counted > triangles.len() {
             self.clear();
         }
-        for (t, tri) in triangles.iter().enumerate().skip(self.counted) {
-            let chunk = t / CHUNK_TRIANGLES;
-            if chunk == self.boxes.len() {
-                self.boxes.push(Aabb::EMPTY);
-                self.vertex_ranges.push((u32::MAX, 0));
-            }
-            for &v in tri {
-                self.boxes[chunk].include(positions[v as usize]);
-                let r = &mut self.vertex_ranges[chunk];
-                *r = (r.0.min(v), r.1.max(v));
-            }
+        let from = self.counted / CHUNK_TRIANGLES;
+        self.boxes.truncate(from);
+        self.vertex_ranges.truncate(from);
+        let fresh: Vec<(Aabb, (u32, u32))> = triangles[from * CHUNK_TRIANGLES..]
+            .par_chunks(CHUNK_TRIANGLES)
+            .map(|tris| {
+                let mut b = Aabb::EMPTY;
+                let mut range = (u32::MAX, 0);
+                for &v in tris.iter().flatten() {
+                    b.include(positions[v as usize]);
+                    range = (range.0.min(v), range.1.max(v));
+                }
+                (b, range)
+            })
+            .collect();
+        for (b, range) in fresh {
+            self.boxes.push(b);
+            self.vertex_ranges.push(range);
         }
         self.counted = triangles.len();
     }

@@ -173,6 +173,8 @@ pub struct MabdiMapper {
     carver: Carver,
     /// M's triangles by the iteration that added them, for simplification.
     patches: Patches,
+    /// Scratch for removal: new vertex indices.
+    remap: Vec<u32>,
     /// Boxes of M's triangle chunks, so E skips what is out of view.
     chunks: ChunkBounds,
 }
@@ -232,6 +234,7 @@ impl MabdiMapper {
             mesher: DepthMesher::new(),
             carver: Carver::default(),
             patches,
+            remap: Vec::new(),
             chunks,
         })
     }
@@ -252,22 +255,70 @@ impl MabdiMapper {
     }
 
     /// Drops the triangles whose removal votes reached the limit, and the
-    /// vertices left unused.
+    /// vertices left unused. Only the patches from the one holding the first
+    /// removed triangle on are touched: M's vertices come in patch order, so
+    /// earlier patches use none of theirs.
     fn remove_contradicted(&mut self, frames: u8) -> usize {
-        let before = self.mesh.triangles.len();
-        let mut index = 0;
         let votes = &self.carver.votes;
-        self.patches.removed(self.iteration, |t| votes[t] < frames);
-        self.mesh.triangles.retain(|_| {
-            index += 1;
-            votes[index - 1] < frames
-        });
+        let Some(first) = votes.iter().position(|&v| v >= frames) else {
+            return 0;
+        };
+        let start = self.patches.start_of(first);
+        self.patches
+            .removed(self.iteration, first, |t| votes[t] < frames);
+        let mesh = &mut self.mesh;
+        let before = mesh.triangles.len();
+        let mut kept = start;
+        for t in start..before {
+            if votes[t] < frames {
+                mesh.triangles[kept] = mesh.triangles[t];
+                kept += 1;
+            }
+        }
+        mesh.triangles.truncate(kept);
         self.carver.retain(|v| v < frames);
-        self.mesh.remove_unreferenced_vertices();
-        self.chunks.clear();
+        compact_vertices(mesh, start, &mut self.remap);
+        self.chunks.truncate(start);
         self.chunks
             .extend(&self.mesh.positions, &self.mesh.triangles);
         before - self.mesh.triangles.len()
+    }
+}
+
+/// Drops the vertices no triangle uses, given that the triangles before
+/// `start` use only vertices before those of the triangles from `start` on;
+/// `remap` is scratch.
+fn compact_vertices(mesh: &mut Mesh, start: usize, remap: &mut Vec<u32>) {
+    let tail = &mut mesh.triangles[start..];
+    let Some(first) = tail.iter().flatten().min().map(|&v| v as usize) else {
+        mesh.positions.truncate(
+            mesh.triangles
+                .iter()
+                .flatten()
+                .max()
+                .map_or(0, |&v| v as usize + 1),
+        );
+        mesh.colors.truncate(mesh.positions.len());
+        return;
+    };
+    remap.clear();
+    remap.resize(mesh.positions.len() - first, u32::MAX);
+    for &v in tail.iter().flatten() {
+        remap[v as usize - first] = 0;
+    }
+    let mut next = first;
+    for (i, r) in remap.iter_mut().enumerate() {
+        if *r == 0 {
+            *r = next as u32;
+            mesh.positions[next] = mesh.positions[first + i];
+            mesh.colors[next] = mesh.colors[first + i];
+            next += 1;
+        }
+    }
+    mesh.positions.truncate(next);
+    mesh.colors.truncate(next);
+    for t in tail.iter_mut() {
+        *t = t.map(|v| remap[v as usize - first]);
     }
 }
 

@@ -86,11 +86,28 @@ impl Patches {
         }
     }
 
-    /// Accounts for a removal at `iteration`; `kept(t)` says whether the
-    /// triangle that was at index `t` stayed.
-    pub fn removed(&mut self, iteration: u32, kept: impl Fn(usize) -> bool) {
+    /// The first triangle of the patch holding triangle `t`.
+    pub fn start_of(&self, t: usize) -> usize {
+        let mut start = 0;
+        for p in &self.patches {
+            if t < start + p.len {
+                break;
+            }
+            start += p.len;
+        }
+        start
+    }
+
+    /// Accounts for a removal at `iteration` that kept every triangle
+    /// before `first`; `kept(t)` says whether the triangle that was at index
+    /// `t` stayed.
+    pub fn removed(&mut self, iteration: u32, first: usize, kept: impl Fn(usize) -> bool) {
         let mut start = 0;
         for p in &mut self.patches {
+            if start + p.len <= first {
+                start += p.len;
+                continue;
+            }
             let left = (start..start + p.len).filter(|&t| kept(t)).count();
             start += p.len;
             // Noise takes a spike now and then; a patch losing a real
