@@ -132,8 +132,10 @@ impl MabdiConfig {
     /// thesis's noise inside the far limit) on regions with 16 solidly
     /// seen-through pixels (a 4×4 patch; 2.6 mm² at 1 m, so any object the
     /// sensor can map shows that much somewhere once it is gone).
-    /// Surface unchanged for 3 iterations is simplified to 0.2·τ(z), σ of
-    /// the thesis's noise.
+    /// Surface unchanged for 3 iterations is simplified to 0.3·τ(z), 1.5σ
+    /// of the thesis's noise (0.2 kept 43 % more triangles on the noisy
+    /// bunnies for no gain in accuracy; the novel pixels per frame did not
+    /// change).
     pub fn thesis(intrinsics: Intrinsics, near: f32, far: f32) -> Self {
         let t = Threshold::thesis(near, far);
         MabdiConfig {
@@ -154,7 +156,7 @@ impl MabdiConfig {
             }),
             settling: Some(Settling {
                 after: 3,
-                error: 0.2,
+                error: 0.3,
             }),
         }
     }

@@ -5,7 +5,7 @@ use crate::camera::{Intrinsics, Pose};
 use crate::error::{Error, Result};
 use crate::image::{DepthImage, Frame};
 use crate::mesh::Mesh;
-use crate::raster::{Rasterizer, RenderTarget, NO_TRIANGLE};
+use crate::raster::{ChunkBounds, Geometry, Rasterizer, RenderTarget, NO_TRIANGLE};
 use crate::sim::noise::NoiseModel;
 use crate::sim::scene::Scene;
 
@@ -32,6 +32,8 @@ pub struct SimulatedSensor {
 #[derive(Debug)]
 struct World {
     mesh: Mesh,
+    /// Boxes of the mesh's triangle chunks, so a render skips what is out of view.
+    chunks: ChunkBounds,
     /// Per triangle: whether its object returns no depth (`returns = false`).
     silent: Vec<bool>,
 }
@@ -43,7 +45,13 @@ impl World {
             .iter()
             .map(|&i| !scene.objects[i as usize].returns)
             .collect();
-        World { mesh, silent }
+        let mut chunks = ChunkBounds::default();
+        chunks.extend(&mesh.positions, &mesh.triangles);
+        World {
+            mesh,
+            chunks,
+            silent,
+        }
     }
 }
 
@@ -96,13 +104,19 @@ impl SimulatedSensor {
         let mesh = &world.mesh;
         // A tiny near plane: a surface closer than the minimum range still
         // hides what is behind it, it just gives no measurement.
-        self.rasterizer.render(
-            &mesh.positions,
-            &mesh.triangles,
+        let geometry = Geometry {
+            positions: &mesh.positions,
+            triangles: &mesh.triangles,
+            chunks: Some(&world.chunks),
+        };
+        self.rasterizer.render_visiting(
+            geometry,
             &self.intrinsics,
             pose,
             0.01,
             &mut self.target,
+            None,
+            |_, _| false,
         );
         let mut depth: DepthImage = self.target.depth.clone();
         // Silent surfaces still hide what is behind them.
