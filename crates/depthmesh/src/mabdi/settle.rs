@@ -7,9 +7,8 @@
 //! groups of consecutive triangles (a few of the mesher's pixel tiles, so a
 //! group spans a small range of depths), each to a geometric error of
 //! `error · τ(z)`, with `τ` the novelty threshold and `z` the group's nearest
-//! depth from the pose that saw it. With the default `error` of 0.3 that is
-//! 1.5σ of the thesis's noise, under a third of what classification
-//! tolerates: E, the classification and the removal evidence are unchanged
+//! depth from the pose that saw it. With the default `error` of 0.2 that is
+//! σ of the thesis's noise, a fifth of what classification tolerates: E, the classification and the removal evidence are unchanged
 //! in effect (the novel pixels per frame stay within 0.1 % of a frame),
 //! while a flat floor tile of 8,192 triangles becomes a few hundred.
 //!
