@@ -7,7 +7,7 @@ use clap::{Args, Subcommand};
 use depthmesh::atomic::write_atomic;
 use depthmesh::dataset::{Dataset, DatasetOptions, FrameRange};
 use depthmesh::eval::distance::MeshDistance;
-use depthmesh::eval::fraction_within;
+use depthmesh::eval::{fraction_within, triangles_on};
 use depthmesh::mabdi::{MabdiConfig, MabdiMapper, NaiveMapper};
 use depthmesh::map::Mapper;
 use depthmesh::mesh::ply::{write_ply, PlyFormat};
@@ -271,18 +271,6 @@ fn mabdi(args: &MabdiBenchArgs) -> Result<()> {
     Ok(())
 }
 
-/// Triangles of `mesh` whose centroid lies within 1 cm of `object` and not
-/// within 5 cm of `rest` (near a contact a triangle's owner is unclear).
-fn triangles_on(mesh: &depthmesh::Mesh, object: &MeshDistance, rest: &MeshDistance) -> usize {
-    (0..mesh.triangle_count())
-        .filter(|&t| {
-            let [a, b, c] = mesh.corners(t);
-            let p = (a + b + c) / 3.0;
-            object.distance(p).is_some() && rest.distance(p).is_none()
-        })
-        .count()
-}
-
 fn mabdi_removal(args: &MabdiRemovalArgs) -> Result<()> {
     let mut options = SceneOptions {
         dynamic: true,
@@ -300,6 +288,7 @@ fn mabdi_removal(args: &MabdiRemovalArgs) -> Result<()> {
         removal: None,
         ..config
     })?;
+    // A triangle is on an object within 1 cm of it and not within 5 cm of another.
     let index: Vec<(MeshDistance, MeshDistance)> = (0..scene.objects.len())
         .map(|i| {
             let mut rest = depthmesh::Mesh::default();

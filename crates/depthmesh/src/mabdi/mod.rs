@@ -272,8 +272,8 @@ impl MabdiMapper {
         let mesh = &mut self.mesh;
         let before = mesh.triangles.len();
         let mut kept = start;
-        for t in start..before {
-            if votes[t] < frames {
+        for (t, &vote) in votes.iter().enumerate().take(before).skip(start) {
+            if vote < frames {
                 mesh.triangles[kept] = mesh.triangles[t];
                 kept += 1;
             }
