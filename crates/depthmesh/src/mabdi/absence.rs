@@ -224,3 +224,87 @@ pub(crate) fn centroid_pixel(s: &[[f32; 3]; 3], w: usize, h: usize) -> Option<(u
     let pixel = v as i32 as usize * w + u as i32 as usize;
     Some((pixel, 3.0 / (s[0][2] + s[1][2] + s[2][2])))
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::mabdi::removal::Carver;
+
+    const W: usize = 40;
+    const H: usize = 30;
+
+    /// E: a surface at 2 m over columns 5..35. D: columns `through` of it
+    /// show a wall at 3 m behind, the other columns of it return nothing,
+    /// and outside it D sees the wall.
+    fn vanished(through: std::ops::Range<usize>) -> Vec<bool> {
+        let mut expected = DepthImage::new(W as u32, H as u32);
+        let mut depth = DepthImage::new(W as u32, H as u32);
+        for r in 0..H {
+            for c in 0..W {
+                let on = (5..35).contains(&c);
+                expected.data[r * W + c] = if on { 2.0 } else { 3.0 };
+                depth.data[r * W + c] = if !on || through.contains(&c) {
+                    3.0
+                } else {
+                    0.0
+                };
+            }
+        }
+        let t = Threshold::Metres(0.05);
+        let mut carver = Carver::default();
+        carver.prepare(&depth, 0, t, 2);
+        let params = MissingReturns {
+            range: [0.9, 3.5],
+            seeds: 16,
+        };
+        let (_, absence) = carver.absence(&expected, t, t, &params, 2);
+        match absence {
+            Some(a) => a.vanished.to_vec(),
+            None => vec![false; W * H],
+        }
+    }
+
+    #[test]
+    fn missing_returns_count_only_where_the_surface_is_seen_through() {
+        // Seen through over six columns: the rest of the surface is vanishing,
+        // except within a pixel of a return.
+        let v = vanished(5..11);
+        assert!(
+            v[15 * W + 20],
+            "a pixel with no return on vanishing surface"
+        );
+        assert!(!v[15 * W + 11], "next to a return");
+        assert!(!v[15 * W + 8], "seen through, not missing");
+        assert!(!v[15 * W + 38], "no surface of M there");
+        // Never seen through (a black object that is there): nothing vanishes.
+        assert!(vanished(0..0).iter().all(|&v| !v));
+        // Seen through in a strip two pixels wide (a misplaced silhouette):
+        // not solid enough to count.
+        assert!(vanished(5..7).iter().all(|&v| !v));
+    }
+
+    #[test]
+    fn a_triangle_on_a_vanished_pixel_within_range_gets_a_vote() {
+        let vanished = vec![true; 9];
+        let absence = Absence {
+            width: 3,
+            height: 3,
+            vanished: &vanished,
+            range: [1.0, 3.0],
+            frames_to_remove: 2,
+        };
+        let at = |z: f32| {
+            [
+                [0.9, 0.9, 1.0 / z],
+                [1.2, 1.0, 1.0 / z],
+                [1.0, 1.2, 1.0 / z],
+            ]
+        };
+        let mut vote = 0;
+        assert!(!absence.judge(&mut vote, &at(2.0)));
+        assert!(absence.judge(&mut vote, &at(2.0)), "two votes remove");
+        let mut vote = 0;
+        absence.judge(&mut vote, &at(3.8));
+        assert_eq!(vote, 0, "beyond the range a surface may not return");
+    }
+}

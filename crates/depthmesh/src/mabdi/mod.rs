@@ -5,7 +5,10 @@
 //! sensor's pose ([`crate::raster`]), classify the pixels of D
 //! ([`classify`](mod@classify)), mesh the novel pixels only ([`mesher`]) and append that
 //! surface S to M, coloured by iteration. Beyond the thesis, triangles the
-//! sensor sees through are removed ([`removal`]). [`NaiveMapper`] is the
+//! sensor sees through are removed ([`removal`]), and so are those where it
+//! returns nothing while the same surface is seen through elsewhere
+//! ([`absence`](mod@absence)); surface that has settled is simplified
+//! ([`settle`]). [`NaiveMapper`] is the
 //! thesis's "traditional method" that appends every frame's whole surface.
 
 pub mod absence;
