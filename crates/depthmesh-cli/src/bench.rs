@@ -272,6 +272,9 @@ fn mabdi(args: &MabdiBenchArgs) -> Result<()> {
 }
 
 fn mabdi_removal(args: &MabdiRemovalArgs) -> Result<()> {
+    if args.iterations == 0 || args.after == 0 {
+        bail!("--iterations and --after must be at least 1");
+    }
     let mut options = SceneOptions {
         dynamic: true,
         ..Default::default()
