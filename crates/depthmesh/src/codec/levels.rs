@@ -54,7 +54,6 @@ const CODES: usize = CONTEXTS * SYMBOLS;
 pub struct Scratch {
     index_of: Vec<u16>,
     levels: Vec<u16>,
-    indices: Vec<u16>,
     /// Per pixel `context * SYMBOLS + symbol`, which fits a byte.
     codes: Vec<u8>,
     bands: Vec<Band>,
@@ -63,6 +62,9 @@ pub struct Scratch {
 /// One band's streams and symbol counts while encoding.
 #[derive(Debug)]
 struct Band {
+    /// Indices of the row above and of this row.
+    up: Vec<u16>,
+    row: Vec<u16>,
     bits: BitWriter,
     rans: Vec<u8>,
     counts: Counts,
@@ -71,6 +73,8 @@ struct Band {
 impl Default for Band {
     fn default() -> Self {
         Band {
+            up: Vec::new(),
+            row: Vec::new(),
             bits: BitWriter::default(),
             rans: Vec::new(),
             counts: [0; CODES],
@@ -82,6 +86,7 @@ impl Default for Band {
 pub(super) fn encode(depth: &RawDepth, scratch: &mut Scratch, out: &mut Vec<u8>) {
     let width = depth.width() as usize;
     build_levels(depth.data(), scratch);
+    let data = depth.data();
     write_levels(&scratch.levels, out);
 
     let pixels = depth.data().len();
@@ -91,16 +96,15 @@ pub(super) fn encode(depth: &RawDepth, scratch: &mut Scratch, out: &mut Vec<u8>)
         .bands
         .resize_with(pixels.div_ceil(band_pixels), Band::default);
     let Scratch {
-        indices,
+        index_of,
         codes,
         bands,
         ..
     } = scratch;
-    indices
-        .par_chunks(band_pixels)
+    data.par_chunks(band_pixels)
         .zip(codes.par_chunks_mut(band_pixels))
         .zip(bands.par_iter_mut())
-        .for_each(|((indices, codes), band)| model_band(indices, width, codes, band));
+        .for_each(|((data, codes), band)| model_band(data, index_of, width, codes, band));
 
     let mut counts = [0u32; CODES];
     for band in bands.iter() {
@@ -177,8 +181,8 @@ pub(super) fn decode(
         })
 }
 
-/// The sorted distinct values of `data` into `scratch.levels`, and each
-/// pixel's index among them into `scratch.indices`.
+/// The sorted distinct values of `data` into `scratch.levels`, and the
+/// index of each among them into `scratch.index_of`.
 fn build_levels(data: &[u16], scratch: &mut Scratch) {
     let index_of = &mut scratch.index_of;
     index_of.clear();
@@ -193,10 +197,6 @@ fn build_levels(data: &[u16], scratch: &mut Scratch) {
             scratch.levels.push(value as u16);
         }
     }
-    scratch.indices.clear();
-    scratch
-        .indices
-        .extend(data.iter().map(|&v| index_of[usize::from(v)]));
 }
 
 fn write_levels(levels: &[u16], out: &mut Vec<u8>) {
@@ -309,32 +309,38 @@ fn symbol_of(zigzag: u32) -> (u8, u32, u32) {
     )
 }
 
-/// Codes and raw bits of one band of indices.
-fn model_band(indices: &[u16], width: usize, codes: &mut [u8], band: &mut Band) {
+/// Codes and raw bits of one band of values, mapped to indices a row at a time.
+fn model_band(data: &[u16], index_of: &[u16], width: usize, codes: &mut [u8], band: &mut Band) {
     band.bits.clear();
     // Four sets of counts, taken in turn, so that incrementing the same
     // counter pixel after pixel does not wait on its own store each time.
     let mut counts = [[0u32; CODES]; 4];
-    let rows = indices
-        .chunks_exact(width)
-        .zip(codes.chunks_exact_mut(width));
-    for (y, (row, codes)) in rows.enumerate() {
-        let up = y.checked_sub(1).map(|u| &indices[u * width..y * width]);
-        let walked = walk_row(up, width, |x, prediction, context| {
-            let index = row[x];
-            let residual = index.wrapping_sub(prediction) as i16;
-            let zigzag = ((residual << 1) ^ (residual >> 15)) as u16;
-            let (symbol, extra, extra_bits) = symbol_of(u32::from(zigzag));
-            if extra_bits > 0 {
-                band.bits.put(extra, extra_bits);
-            }
-            let code = (context * SYMBOLS) as u8 + symbol;
-            codes[x] = code;
-            counts[x & 3][usize::from(code)] += 1;
-            Ok::<_, std::convert::Infallible>(index)
-        });
+    let (mut up, mut row) = (std::mem::take(&mut band.up), std::mem::take(&mut band.row));
+    let rows = data.chunks_exact(width).zip(codes.chunks_exact_mut(width));
+    for (y, (values, codes)) in rows.enumerate() {
+        row.clear();
+        row.extend(values.iter().map(|&v| index_of[usize::from(v)]));
+        let walked = walk_row(
+            (y > 0).then_some(&up[..]),
+            width,
+            |x, prediction, context| {
+                let index = row[x];
+                let residual = index.wrapping_sub(prediction) as i16;
+                let zigzag = ((residual << 1) ^ (residual >> 15)) as u16;
+                let (symbol, extra, extra_bits) = symbol_of(u32::from(zigzag));
+                if extra_bits > 0 {
+                    band.bits.put(extra, extra_bits);
+                }
+                let code = (context * SYMBOLS) as u8 + symbol;
+                codes[x] = code;
+                counts[x & 3][usize::from(code)] += 1;
+                Ok::<_, std::convert::Infallible>(index)
+            },
+        );
         let Ok(()) = walked;
+        std::mem::swap(&mut up, &mut row);
     }
+    (band.up, band.row) = (up, row);
     band.counts = [0; CODES];
     for set in &counts {
         for (total, count) in band.counts.iter_mut().zip(set) {
