@@ -23,15 +23,16 @@
 //!   its value), all Elias gamma codes;
 //! - 8 frequency tables (one per context, see [`rans`](super::rans));
 //! - per band of 64 rows: the rANS bytes, then the raw bits, each after its
-//!   `u32` length. Bands are predicted independently (a band's
-//!   first row from its left neighbours only), so they are coded in
-//!   parallel, and the stream does not depend on the number of threads.
+//!   `u32` length. Bands are predicted independently (a band's first row
+//!   from its left neighbours only), so a decoder could take them in
+//!   parallel; this one codes them in turn, as a 640×480 frame takes about
+//!   2 ms on one core and waking rayon's threads from outside the pool cost
+//!   more than that on a busy 2-core machine (measured with `bench codec`).
 
 use super::bits::{BitReader, BitWriter};
-use super::rans::{encode_table, DecodeTable, Frequencies, RansDecoder, RansEncoder};
+use super::rans::{encode_all, encode_table, DecodeTable, Frequencies, RansDecoder};
 use super::RawDepth;
 use crate::error::{Error, Result};
-use rayon::prelude::*;
 
 const NAME: &str = "levels";
 /// Contexts: bit lengths 0–6 of the local activity, and 7 for all larger.
@@ -42,7 +43,7 @@ const DIRECT: u32 = 8;
 const SYMBOLS: usize = DIRECT as usize + 13;
 /// Rows per independently coded band: large enough that a band's first
 /// row (predicted less well) and its 8 bytes of lengths are noise, small
-/// enough that a 480-row frame splits over 8 threads.
+/// enough that a 480-row frame could be decoded by 8 threads.
 const BAND_ROWS: usize = 64;
 
 /// Symbol counts per code (`context * SYMBOLS + symbol`).
@@ -101,9 +102,9 @@ pub(super) fn encode(depth: &RawDepth, scratch: &mut Scratch, out: &mut Vec<u8>)
         bands,
         ..
     } = scratch;
-    data.par_chunks(band_pixels)
-        .zip(codes.par_chunks_mut(band_pixels))
-        .zip(bands.par_iter_mut())
+    data.chunks(band_pixels)
+        .zip(codes.chunks_mut(band_pixels))
+        .zip(bands.iter_mut())
         .for_each(|((data, codes), band)| model_band(data, index_of, width, codes, band));
 
     let mut counts = [0u32; CODES];
@@ -120,15 +121,10 @@ pub(super) fn encode(depth: &RawDepth, scratch: &mut Scratch, out: &mut Vec<u8>)
         table.extend(encode_table(&freq));
     }
     codes
-        .par_chunks(band_pixels)
-        .zip(bands.par_iter_mut())
+        .chunks(band_pixels)
+        .zip(bands.iter_mut())
         .for_each(|(codes, band)| {
-            let mut encoder = RansEncoder::new(&mut band.rans);
-            encoder.reserve(codes.len());
-            for (i, &code) in codes.iter().enumerate().rev() {
-                encoder.put(i, &table[usize::from(code)]);
-            }
-            encoder.finish();
+            encode_all(codes, &table, &mut band.rans);
         });
     for band in bands.iter_mut() {
         let bits = band.bits.finish();
@@ -169,16 +165,13 @@ pub(super) fn decode(
         ));
     }
     let levels = &scratch.levels;
-    values
-        .par_chunks_mut(band_pixels)
-        .zip(streams)
-        .try_for_each(|(band, (rans, bits))| {
-            decode_band(band, width, &tables, levels.len(), rans, bits)?;
-            for value in band.iter_mut() {
-                *value = levels[usize::from(*value)];
-            }
-            Ok(())
-        })
+    for (band, (rans, bits)) in values.chunks_mut(band_pixels).zip(streams) {
+        decode_band(band, width, &tables, levels.len(), rans, bits)?;
+        for value in band.iter_mut() {
+            *value = levels[usize::from(*value)];
+        }
+    }
+    Ok(())
 }
 
 /// The sorted distinct values of `data` into `scratch.levels`, and the
@@ -312,9 +305,6 @@ fn symbol_of(zigzag: u32) -> (u8, u32, u32) {
 /// Codes and raw bits of one band of values, mapped to indices a row at a time.
 fn model_band(data: &[u16], index_of: &[u16], width: usize, codes: &mut [u8], band: &mut Band) {
     band.bits.clear();
-    // Four sets of counts, taken in turn, so that incrementing the same
-    // counter pixel after pixel does not wait on its own store each time.
-    let mut counts = [[0u32; CODES]; 4];
     let (mut up, mut row) = (std::mem::take(&mut band.up), std::mem::take(&mut band.row));
     let rows = data.chunks_exact(width).zip(codes.chunks_exact_mut(width));
     for (y, (values, codes)) in rows.enumerate() {
@@ -331,14 +321,24 @@ fn model_band(data: &[u16], index_of: &[u16], width: usize, codes: &mut [u8], ba
                 if extra_bits > 0 {
                     band.bits.put(extra, extra_bits);
                 }
-                let code = (context * SYMBOLS) as u8 + symbol;
-                codes[x] = code;
-                counts[x & 3][usize::from(code)] += 1;
+                codes[x] = (context * SYMBOLS) as u8 + symbol;
                 Ok::<_, std::convert::Infallible>(index)
             },
         );
         let Ok(()) = walked;
         std::mem::swap(&mut up, &mut row);
+    }
+    // Counted after, four bytes at a time into four tables, so that
+    // counting the same code again does not wait on its own store.
+    let mut counts = [[0u32; CODES]; 4];
+    let mut quads = codes.chunks_exact(4);
+    for quad in &mut quads {
+        for (set, &code) in counts.iter_mut().zip(quad) {
+            set[usize::from(code)] += 1;
+        }
+    }
+    for &code in quads.remainder() {
+        counts[0][usize::from(code)] += 1;
     }
     (band.up, band.row) = (up, row);
     band.counts = [0; CODES];
