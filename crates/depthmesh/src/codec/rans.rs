@@ -102,8 +102,7 @@ pub(super) fn encode_table<const N: usize>(freq: &Frequencies<N>) -> [EncodeSymb
                 (u32::MAX, 0, start + PROB_SCALE - 1)
             } else {
                 let shift = 32 - (f - 1).leading_zeros();
-                let reciprocal =
-                    (((1u64 << (shift + 31)) + u64::from(f) - 1) / u64::from(f)) as u32;
+                let reciprocal = (1u64 << (shift + 31)).div_ceil(u64::from(f)) as u32;
                 (reciprocal, shift - 1, start)
             };
             *symbol = EncodeSymbol {

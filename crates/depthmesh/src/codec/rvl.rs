@@ -109,7 +109,7 @@ pub fn encode_payload(values: &[u16], out: &mut Vec<u8>) {
 /// Decodes a bare RVL payload into exactly `out.len()` pixels. The payload
 /// must be whole words and end where the pixels do.
 pub fn decode_payload(bytes: &[u8], out: &mut [u16]) -> Result<()> {
-    if bytes.len() % 4 != 0 {
+    if !bytes.len().is_multiple_of(4) {
         return Err(Error::codec(
             NAME,
             format!("payload of {} bytes is not whole 32-bit words", bytes.len()),
