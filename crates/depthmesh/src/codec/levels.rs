@@ -98,14 +98,15 @@ pub(super) fn encode(depth: &RawDepth, scratch: &mut Scratch, out: &mut Vec<u8>)
         .resize_with(pixels.div_ceil(band_pixels), Band::default);
     let Scratch {
         index_of,
+        levels,
         codes,
         bands,
-        ..
     } = scratch;
     data.chunks(band_pixels)
         .zip(codes.chunks_mut(band_pixels))
         .zip(bands.iter_mut())
         .for_each(|((data, codes), band)| model_band(data, index_of, width, codes, band));
+    clear_levels(index_of, levels);
 
     let mut counts = [0u32; CODES];
     for band in bands.iter() {
@@ -175,20 +176,34 @@ pub(super) fn decode(
 }
 
 /// The sorted distinct values of `data` into `scratch.levels`, and the
-/// index of each among them into `scratch.index_of`.
+/// index of each among them into `scratch.index_of`, whose other entries
+/// are zero and which [`clear_levels`] leaves all zero again.
 fn build_levels(data: &[u16], scratch: &mut Scratch) {
     let index_of = &mut scratch.index_of;
-    index_of.clear();
     index_of.resize(1 << 16, 0);
     for &v in data {
         index_of[usize::from(v)] = 1;
     }
     scratch.levels.clear();
-    for (value, index) in index_of.iter_mut().enumerate() {
-        if *index != 0 {
-            *index = scratch.levels.len() as u16;
-            scratch.levels.push(value as u16);
+    // Blocks of 64 marks tested at once (the OR vectorises), as a frame
+    // holds a few hundred of the 65536 values.
+    for (block, marks) in index_of.chunks_exact_mut(64).enumerate() {
+        if marks.iter().fold(0, |any, &m| any | m) == 0 {
+            continue;
         }
+        for (offset, mark) in marks.iter_mut().enumerate() {
+            if *mark != 0 {
+                *mark = scratch.levels.len() as u16;
+                scratch.levels.push((block * 64 + offset) as u16);
+            }
+        }
+    }
+}
+
+/// Zeroes the entries [`build_levels`] set, ready for the next frame.
+fn clear_levels(index_of: &mut [u16], levels: &[u16]) {
+    for &level in levels {
+        index_of[usize::from(level)] = 0;
     }
 }
 

@@ -195,3 +195,22 @@ fn rvl_differences_wrap_as_the_signed_variant_writes_them() {
     rvl::decode_payload(&stream[4..], &mut values).unwrap();
     assert_eq!(values, [0, 0, 5, 6, 7, 0, 65535, 1]);
 }
+
+#[test]
+fn reused_encoders_and_decoders_carry_nothing_from_frame_to_frame() {
+    let frames = [
+        varied(),
+        pypi_pattern(),
+        image(5, 4, |x, y| (x * 1000 + y) as u16),
+        varied(),
+    ];
+    for codec in Codec::ALL {
+        let (mut encoder, mut decoder) = (Encoder::new(codec), Decoder::new(codec, 10_000));
+        let (mut bytes, mut decoded) = (Vec::new(), RawDepth::default());
+        for frame in &frames {
+            encoder.encode(frame, &mut bytes);
+            decoder.decode_into(&bytes, &mut decoded).unwrap();
+            assert_eq!(&decoded, frame, "{codec}");
+        }
+    }
+}
