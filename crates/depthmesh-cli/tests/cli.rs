@@ -577,7 +577,7 @@ fn the_study_writes_its_plots_and_table() {
 #[test]
 fn bench_codec_reports_every_codec_lossless() {
     let dir = scratch("bench-codec");
-    simulated_frames_folder(&dir);
+    simulated_frames_folder(&dir, 3);
     let output = depthmesh(&[
         "bench",
         "codec",
