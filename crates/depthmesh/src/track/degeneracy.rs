@@ -63,7 +63,8 @@ impl Directions {
     pub fn solve(&self, floor: f64) -> ([f64; 3], [f64; 3]) {
         let mut y = [0.0; 6];
         for (&value, v) in self.values.iter().zip(&self.vectors) {
-            if !(value >= floor) || value <= 0.0 {
+            // NaN fails the comparison too.
+            if value.partial_cmp(&floor.max(0.0)) != Some(std::cmp::Ordering::Greater) {
                 continue;
             }
             // The component of the solution of a·y = -b along v.

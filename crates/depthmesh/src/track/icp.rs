@@ -99,7 +99,7 @@ impl Equations {
     /// and the scale `S` (1/range for the rotations, 1 for the
     /// translations), so that `x = S·y` solves `A·x = -b` when `y` solves
     /// the scaled one; `None` without inliers.
-    pub fn scaled(&self) -> Option<([[f64; 6]; 6], [f64; 6], [f64; 6])> {
+    pub fn scaled(&self) -> Option<Scaled> {
         if self.inliers == 0 {
             return None;
         }
@@ -116,6 +116,9 @@ impl Equations {
         Some((a, b, scale))
     }
 }
+
+/// A range-scaled system: `S·A·S/n`, `S·b/n` and the diagonal of `S`.
+pub type Scaled = ([[f64; 6]; 6], [f64; 6], [f64; 6]);
 
 /// The sums of one row of pixels, in `f32` (the vector unit does twice as
 /// many as in `f64`): a row is a few hundred terms, whose `f32` sum is exact

@@ -158,7 +158,7 @@ impl TrackerConfig {
             ("convergence", self.convergence, 0.0, 1.0),
         ];
         for (name, v, lo, hi) in ranges {
-            if !(v >= lo && v < hi) && !(name == "max_normal_angle" && v == hi) {
+            if !(v >= lo && v < hi || name == "max_normal_angle" && v == hi) {
                 return Err(Error::parameter(
                     name,
                     format!("must be in [{lo}, {hi:.3}), got {v}"),
@@ -451,7 +451,7 @@ impl Tracker {
             }
             let t = self.icp(self.last_good, self.velocity, Search::Follow);
             iterations += t.iterations;
-            let better = best.map_or(true, |b| {
+            let better = best.is_none_or(|b| {
                 (t.lost.is_none(), t.conditioning) > (b.lost.is_none(), b.conditioning)
             });
             if better {
@@ -519,7 +519,7 @@ impl Tracker {
             let t = self.icp(pose, Pose::IDENTITY, Search::Relocalise);
             iterations += t.iterations;
             match t.lost {
-                None if best.map_or(true, |b| t.inlier_fraction > b.inlier_fraction) => {
+                None if best.is_none_or(|b| t.inlier_fraction > b.inlier_fraction) => {
                     best = Some(t)
                 }
                 None => {}
@@ -870,10 +870,7 @@ mod tests {
             // The two translations along the wall and the turn about its
             // normal are weak.
             assert_eq!(t.weak_directions, 3, "{t:?}");
-            assert_eq!(
-                super::super::degeneracy::axes_label(t.weak_axes).len() >= 2,
-                true
-            );
+            assert_ne!(t.weak_axes, 0, "{t:?}");
             // What the wall constrains is right: the distance to it.
             assert!((t.pose.translation.z - 2.0).abs() < 1e-3, "{t:?}");
             // What it does not comes from the motion model, which had no
