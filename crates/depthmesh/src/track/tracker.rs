@@ -753,10 +753,10 @@ mod tests {
 
     /// A map that is the scene itself, blind in views narrower than
     /// `blind_below` pixels.
-    struct SceneMap<'a> {
-        scene: &'a Scene,
-        blind_below: u32,
-        mesh: crate::mesh::Mesh,
+    pub(super) struct SceneMap<'a> {
+        pub(super) scene: &'a Scene,
+        pub(super) blind_below: u32,
+        pub(super) mesh: crate::mesh::Mesh,
     }
 
     impl Mapper for SceneMap<'_> {
@@ -1019,6 +1019,7 @@ mod tests {
 /// explain (issue "tracking that does not give up").
 #[cfg(test)]
 mod recovery_tests {
+    use super::tests::SceneMap;
     use super::*;
     use crate::sim::{NoiseModel, PathSpec, Scene, SceneOptions, SimulatedSensor};
     use glam::Vec3;
@@ -1049,28 +1050,11 @@ translation = [0.2, 0.225, -0.1]
     }
 
     /// The scene itself as the map: what a perfect fusion would predict.
-    struct SceneMap<'a>(&'a Scene);
-
-    impl Mapper for SceneMap<'_> {
-        fn name(&self) -> &'static str {
-            "scene"
-        }
-        fn integrate(
-            &mut self,
-            _: &crate::image::Frame,
-            _: &Pose,
-        ) -> Result<crate::map::IntegrateReport> {
-            Ok(Default::default())
-        }
-        fn render_depth(&self, k: &Intrinsics, pose: &Pose) -> DepthImage {
-            let mut sensor = SimulatedSensor::new(*k, 0.4, 6.0, NoiseModel::None, 1).unwrap();
-            sensor.capture(self.0, 1, pose).depth
-        }
-        fn mesh(&mut self) -> &crate::mesh::Mesh {
-            unimplemented!("not used by tracking")
-        }
-        fn stats(&self) -> crate::map::MapStats {
-            Default::default()
+    fn scene_map(scene: &Scene) -> SceneMap<'_> {
+        SceneMap {
+            scene,
+            blind_below: 0,
+            mesh: Default::default(),
         }
     }
 
@@ -1090,7 +1074,7 @@ translation = [0.2, 0.225, -0.1]
         let mut sensor = SimulatedSensor::kinect(NoiseModel::Kinect, 7);
         let k = sensor.intrinsics;
         let mut tracker = Tracker::new(TrackerConfig::default(), k, poses[0]).unwrap();
-        let map = SceneMap(&scene);
+        let map = scene_map(&scene);
         let mut worst = 0.0f32;
         for (i, pose) in poses.iter().enumerate().take(count).skip(1) {
             let t = tracker.track(&sensor.capture(&scene, i as u32, pose).depth, &map);
@@ -1127,7 +1111,7 @@ translation = [0.2, 0.225, -0.1]
     #[test]
     fn a_camera_that_jumps_is_found_again_within_ten_frames() {
         let room = scene(ROOM);
-        let map = SceneMap(&room);
+        let map = scene_map(&room);
         let k = Intrinsics::from_vertical_fov(320, 240, 60.0);
         let mut sensor = SimulatedSensor::new(k, 0.4, 6.0, NoiseModel::Kinect, 3).unwrap();
         // 2° (7 cm) a frame out to 80°; the frames while the camera goes
@@ -1192,7 +1176,7 @@ translation = [0.0, 0.3, 0.6]
         assert!(tracker.keyframes() > 3);
         // The map is the room; the frames show another place from the same
         // kind of poses.
-        let map = SceneMap(&room);
+        let map = scene_map(&room);
         for i in 0..12 {
             let pose = around_room(30.0 * i as f32);
             let t = tracker.relocalise(&sensor.capture(&elsewhere, 50 + i, &pose).depth, &map);
