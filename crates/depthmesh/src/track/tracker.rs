@@ -105,7 +105,7 @@ impl Default for TrackerConfig {
             bilateral: Some(BilateralParams::default()),
             min_inlier_fraction: 0.25,
             max_rms: 0.02,
-            weak_conditioning: 3e-4,
+            weak_conditioning: 3e-5,
             refine_conditioning: 2e-3,
             max_jump: 0.3,
             convergence: 1e-5,
