@@ -1,5 +1,7 @@
 //! `depthmesh eval`: accuracy of a run's output against a reference.
 
+mod relocalise;
+
 use anyhow::{bail, Result};
 use clap::{Args, Subcommand};
 use depthmesh::dataset::{Dataset, DatasetOptions};
@@ -14,6 +16,8 @@ use std::path::{Path, PathBuf};
 pub enum EvalCommand {
     /// Trajectory error (ATE raw and aligned, RPE) of an estimate against a reference.
     Trajectory(TrajectoryArgs),
+    /// Relocalisation: query frames found again in a map built from other frames.
+    Relocalise(relocalise::RelocaliseArgs),
 }
 
 /// Flags of `depthmesh eval trajectory`.
@@ -36,6 +40,7 @@ pub struct TrajectoryArgs {
 pub fn run(command: &EvalCommand) -> Result<()> {
     match command {
         EvalCommand::Trajectory(args) => trajectory(args),
+        EvalCommand::Relocalise(args) => relocalise::run(args),
     }
 }
 

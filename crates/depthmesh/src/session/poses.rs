@@ -21,6 +21,13 @@ pub struct TrackRecord {
     pub conditioning: f64,
     /// ICP iterations run, all levels.
     pub iterations: usize,
+    /// Directions of motion the view barely constrains, taken from the
+    /// motion model instead of the data (0 to 6).
+    pub weak_directions: u8,
+    /// Which: a bit per axis, as [`crate::track::degeneracy::axes_label`] names them.
+    pub weak_axes: u8,
+    /// The frame was found again after a loss.
+    pub relocalised: bool,
     /// Why the frame was lost (and not fused), if it was.
     pub lost: Option<LostReason>,
 }
@@ -135,6 +142,9 @@ impl PoseSource {
                 residual_mm: t.rms * 1e3,
                 conditioning: t.conditioning,
                 iterations: t.iterations,
+                weak_directions: t.weak_directions,
+                weak_axes: t.weak_axes,
+                relocalised: t.relocalised,
                 lost: t.lost,
             }),
             event,

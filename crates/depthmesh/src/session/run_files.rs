@@ -11,6 +11,7 @@ use crate::mesh::chunk::DEFAULT_MAX_VERTICES;
 use crate::mesh::chunk_files::ChunkFiles;
 use crate::mesh::ply::{write_ply, PlyFormat, PlyLayout};
 use crate::mesh::Mesh;
+use crate::track::degeneracy::axes_label;
 use crate::trajectory::format_tum;
 use serde_json::{json, Map, Value};
 use std::io::Write;
@@ -173,7 +174,8 @@ fn write_stats(path: &Path, session: &Session) -> Result<()> {
         if tracked {
             write!(
                 w,
-                ",track_ms,inlier_fraction,residual_mm,conditioning,lost,icp_iterations"
+                ",track_ms,inlier_fraction,residual_mm,conditioning,lost,icp_iterations,\
+                 weak_directions,weak_axes,relocalised"
             )?;
         }
         writeln!(w)?;
@@ -196,15 +198,18 @@ fn write_stats(path: &Path, session: &Session) -> Result<()> {
             match (tracked, r.track) {
                 (true, Some(t)) => write!(
                     w,
-                    ",{:.3},{:.4},{:.3},{:.5},{},{}",
+                    ",{:.3},{:.4},{:.3},{:.5},{},{},{},{},{}",
                     t.ms,
                     t.inlier_fraction,
                     t.residual_mm,
                     t.conditioning,
                     u8::from(t.lost.is_some()),
-                    t.iterations
+                    t.iterations,
+                    t.weak_directions,
+                    axes_label(t.weak_axes),
+                    u8::from(t.relocalised)
                 )?,
-                (true, None) => write!(w, ",,,,,0,")?,
+                (true, None) => write!(w, ",,,,,0,,,,0")?,
                 (false, _) => {}
             }
             writeln!(w)?;

@@ -4,7 +4,7 @@
 
 use super::pyramid::Level;
 use crate::camera::Pose;
-use crate::linalg::{cholesky_solve, symmetric_eigen};
+use crate::linalg::symmetric_eigen;
 use glam::{Quat, Vec3};
 use rayon::prelude::*;
 
@@ -89,8 +89,19 @@ impl Equations {
     /// 1/3 for three orthogonal planes filling the view, near 0 for a
     /// single plane (which leaves two translations and a rotation free).
     pub fn conditioning(&self) -> f64 {
+        match self.scaled() {
+            Some((a, _, _)) => symmetric_eigen(&a).0[0],
+            None => 0.0,
+        }
+    }
+
+    /// The system of [`Equations::conditioning`]: `S·A·S/n` and `S·b/n`,
+    /// and the scale `S` (1/range for the rotations, 1 for the
+    /// translations), so that `x = S·y` solves `A·x = -b` when `y` solves
+    /// the scaled one; `None` without inliers.
+    pub fn scaled(&self) -> Option<Scaled> {
         if self.inliers == 0 {
-            return 0.0;
+            return None;
         }
         let n = self.inliers as f64;
         let range = (self.squared_range / n).sqrt().max(1e-6);
@@ -101,17 +112,13 @@ impl Equations {
                 *v *= scale[r] * scale[c] / n;
             }
         }
-        symmetric_eigen(&a).0[0]
-    }
-
-    /// The motion (rotation ω as a scaled axis, translation t) minimising
-    /// the linearised error; `None` for a singular system.
-    pub fn solve(&self) -> Option<([f64; 3], [f64; 3])> {
-        let b = self.atb.map(|v| -v);
-        let x = cholesky_solve(&self.matrix(), &b)?;
-        Some(([x[0], x[1], x[2]], [x[3], x[4], x[5]]))
+        let b = std::array::from_fn(|i| self.atb[i] * scale[i] / n);
+        Some((a, b, scale))
     }
 }
+
+/// A range-scaled system: `S·A·S/n`, `S·b/n` and the diagonal of `S`.
+pub type Scaled = ([[f64; 6]; 6], [f64; 6], [f64; 6]);
 
 /// The sums of one row of pixels, in `f32` (the vector unit does twice as
 /// many as in `f64`): a row is a few hundred terms, whose `f32` sum is exact
@@ -217,4 +224,46 @@ pub fn apply_motion(pose: &Pose, omega: [f64; 3], t: [f64; 3]) -> Pose {
     let moved = motion.compose(pose);
     // Keep the rotation orthonormal as updates accumulate in f32.
     Pose::from_quat(moved.quat(), moved.translation)
+}
+
+/// How far a frame agrees with a model view, for verifying a pose found
+/// without a prediction: the fraction of the frame's measured points
+/// (normals or not) that land on a model point within `distance`, and the
+/// RMS distance of those.
+pub fn agreement(frame: &Level, model: &Level, frame_to_model: &Pose, distance: f32) -> (f64, f64) {
+    let (mw, mh) = model.size();
+    let Some(mk) = model.intrinsics else {
+        return (0.0, 0.0);
+    };
+    let max_d2 = distance * distance;
+    let (measured, near, squared) = frame
+        .points
+        .par_iter()
+        .fold(
+            || (0usize, 0usize, 0.0f64),
+            |(measured, near, squared), &p| {
+                if p.z <= 0.0 {
+                    return (measured, near, squared);
+                }
+                let q = frame_to_model.transform_point(p);
+                let hit = mk.project(q).and_then(|uv| {
+                    let (u, v) = (uv.x + 0.5, uv.y + 0.5);
+                    (u >= 0.0 && v >= 0.0 && u < mw as f32 && v < mh as f32)
+                        .then(|| model.points[v as usize * mw + u as usize])
+                });
+                match hit {
+                    Some(m) if m.z > 0.0 && (q - m).length_squared() <= max_d2 => (
+                        measured + 1,
+                        near + 1,
+                        squared + f64::from((q - m).length_squared()),
+                    ),
+                    _ => (measured + 1, near, squared),
+                }
+            },
+        )
+        .reduce(|| (0, 0, 0.0), |a, b| (a.0 + b.0, a.1 + b.1, a.2 + b.2));
+    (
+        near as f64 / measured.max(1) as f64,
+        (squared / near.max(1) as f64).sqrt(),
+    )
 }

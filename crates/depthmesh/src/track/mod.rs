@@ -6,11 +6,16 @@
 //! by projective point-to-plane ICP ([`icp`]) against what the map predicts
 //! from the last good pose — any back-end's [`crate::map::Mapper::render_depth`]
 //! — coarse to fine, starting from a constant-velocity guess ([`tracker`]).
-//! An alignment with too few matches, a large residual, a direction left
-//! unconstrained (a single wall) or an implausible jump is reported as lost,
-//! and the frame is not fused; the next frame searches wider around the last
-//! good pose.
+//! Directions the view barely constrains (a floor, a long wall) keep the
+//! guess instead of following the noise ([`degeneracy`]). A frame is lost
+//! only when it contradicts the map: too few matches, a large residual or
+//! an implausible jump; it is not fused. The camera is then searched for
+//! near its last pose and from the keyframes most like the frame
+//! ([`ferns`]), and a pose found is verified against the map before the
+//! frame is fused.
 
+pub mod degeneracy;
+pub mod ferns;
 pub mod filter;
 pub mod icp;
 pub mod pyramid;

@@ -1,9 +1,15 @@
 //! Frame-to-model tracking: each frame is aligned by coarse-to-fine ICP
-//! against the map's prediction from the last good pose; a failed
-//! alignment is reported and never used.
+//! against the map's prediction from the last good pose, solving only for
+//! the directions the view constrains ([`super::degeneracy`]); a frame that
+//! contradicts the map is reported lost and never used, and the camera is
+//! then searched for near where it was and, failing that, from the
+//! keyframes most like the frame ([`super::ferns`]), every candidate pose
+//! verified against the map before it is accepted.
 
+use super::degeneracy::{Directions, Weak};
+use super::ferns::{FernConfig, Keyframes};
 use super::filter::{Bilateral, BilateralParams};
-use super::icp::{apply_motion, equations, Association};
+use super::icp::{agreement, apply_motion, equations, Association, Equations};
 use super::pyramid::{half, Pyramid};
 use crate::camera::{Intrinsics, Pose};
 use crate::error::{Error, Result};
@@ -23,6 +29,19 @@ const MAX_EXTRAPOLATED: usize = 15;
 /// normals cover too much of the frame.
 pub const MIN_MODEL_WIDTH: u32 = 160;
 
+/// Keyframe poses closer than this to one already tried (metres, and the
+/// same number in radians) are not tried again in one relocalisation: ICP
+/// from either converges to the same pose.
+const SAME_CANDIDATE: f32 = 0.05;
+
+/// Directions with an eigenvalue below this fraction of
+/// [`TrackerConfig::weak_conditioning`] are not solved for even while
+/// iterating: they are numerically singular (a plane's in-plane motion).
+const SINGULAR: f64 = 0.01;
+
+/// ICP iterations per level, at most: more is a mistake, not a setting.
+const MAX_ITERATIONS: usize = 100;
+
 /// Tracking parameters; the defaults are KinectFusion's where it has one,
 /// except the iterations: Open3D's (6, 3, 1) track 7-Scenes as accurately
 /// as KinectFusion's (10, 5, 4) at a third of the cost.
@@ -40,9 +59,17 @@ pub struct TrackerConfig {
     pub min_inlier_fraction: f64,
     /// Lost when the inliers' RMS point-to-plane error is larger (metres).
     pub max_rms: f64,
-    /// Lost when the alignment leaves a direction this weakly constrained
-    /// (see [`super::icp::Equations::conditioning`]).
-    pub min_conditioning: f64,
+    /// Eigen-directions of the ICP system constrained less than this (see
+    /// [`super::icp::Equations::conditioning`]) are weak: they keep the
+    /// motion model's prediction instead of following the noise
+    /// ([`super::degeneracy`]). A weak view is tracked, not lost.
+    pub weak_conditioning: f64,
+    /// A frame aligned against the model view with a conditioning below
+    /// this is aligned again against the finer view (see
+    /// [`TrackerConfig::model_halvings`]), where thin structures (a table
+    /// top's edge, a chair's legs) keep their normals, and the better
+    /// conditioned alignment is kept.
+    pub refine_conditioning: f64,
     /// Lost when the frame moved more than this from the prediction (metres).
     pub max_jump: f32,
     /// Iterations stop once an update moves points less than this (metres).
@@ -57,6 +84,16 @@ pub struct TrackerConfig {
     /// same frame-to-frame consistency; ATE 5.26 against 5.38 cm) in a third
     /// of the ray-casting time. Never below [`MIN_MODEL_WIDTH`] pixels.
     pub model_halvings: u32,
+    /// A pose found after a loss (near the last pose or from a keyframe)
+    /// is accepted only if at least this fraction of the frame's points lie
+    /// within [`TrackerConfig::verify_distance`] of the map's view from it,
+    /// with the RMS error within [`TrackerConfig::max_rms`] and no weak
+    /// direction: a wrong pose must never be fused.
+    pub verify_inlier_fraction: f64,
+    /// Distance of a verified match (metres).
+    pub verify_distance: f32,
+    /// Keyframes for relocalisation.
+    pub relocalisation: FernConfig,
 }
 
 impl Default for TrackerConfig {
@@ -68,27 +105,71 @@ impl Default for TrackerConfig {
             bilateral: Some(BilateralParams::default()),
             min_inlier_fraction: 0.25,
             max_rms: 0.02,
-            min_conditioning: 2e-3,
+            weak_conditioning: 3e-5,
+            refine_conditioning: 2e-3,
             max_jump: 0.3,
             convergence: 1e-5,
             model_halvings: 2,
+            verify_inlier_fraction: 0.5,
+            verify_distance: 0.03,
+            relocalisation: FernConfig::default(),
         }
     }
 }
 
 impl TrackerConfig {
-    /// Rejects settings that cannot track.
+    /// Rejects settings that cannot track, naming the field.
     pub fn validate(&self) -> Result<()> {
         let positive = [
             ("max_distance", f64::from(self.max_distance)),
-            ("max_normal_angle", f64::from(self.max_normal_angle)),
             ("max_rms", self.max_rms),
             ("max_jump", f64::from(self.max_jump)),
+            ("verify_distance", f64::from(self.verify_distance)),
         ];
         for (name, v) in positive {
             if !(v.is_finite() && v > 0.0) {
                 return Err(Error::parameter(name, format!("must be positive, got {v}")));
             }
+        }
+        let ranges = [
+            // Normals more than 90° apart face opposite ways.
+            (
+                "max_normal_angle",
+                f64::from(self.max_normal_angle),
+                0.0,
+                90.0,
+            ),
+            ("min_inlier_fraction", self.min_inlier_fraction, 0.0, 1.0),
+            (
+                "verify_inlier_fraction",
+                self.verify_inlier_fraction,
+                0.0,
+                1.0,
+            ),
+            // 1/3 is the largest smallest eigenvalue (three orthogonal
+            // planes); at or above it every direction would be weak.
+            ("weak_conditioning", self.weak_conditioning, 0.0, 1.0 / 3.0),
+            (
+                "refine_conditioning",
+                self.refine_conditioning,
+                0.0,
+                1.0 / 3.0,
+            ),
+            ("convergence", self.convergence, 0.0, 1.0),
+        ];
+        for (name, v, lo, hi) in ranges {
+            if !(v >= lo && v < hi || name == "max_normal_angle" && v == hi) {
+                return Err(Error::parameter(
+                    name,
+                    format!("must be in [{lo}, {hi:.3}), got {v}"),
+                ));
+            }
+        }
+        if self.max_normal_angle <= 0.0 {
+            return Err(Error::parameter(
+                "max_normal_angle",
+                format!("must be positive, got {}", self.max_normal_angle),
+            ));
         }
         if self.model_halvings > 4 {
             return Err(Error::parameter(
@@ -105,10 +186,16 @@ impl TrackerConfig {
                 "all levels have 0 iterations",
             ));
         }
+        if let Some(&i) = self.iterations.iter().find(|&&i| i > MAX_ITERATIONS) {
+            return Err(Error::parameter(
+                "iterations",
+                format!("at most {MAX_ITERATIONS} per level, got {i}"),
+            ));
+        }
         if let Some(b) = &self.bilateral {
             b.validate()?;
         }
-        Ok(())
+        self.relocalisation.validate()
     }
 }
 
@@ -121,9 +208,9 @@ pub enum LostReason {
     FewInliers(f64),
     /// The matched points disagree with the model (RMS error, metres).
     LargeError(f64),
-    /// The geometry does not constrain every direction, e.g. a single plane
-    /// (the conditioning figure).
-    Degenerate(f64),
+    /// A pose found after a loss leaves this many directions weakly
+    /// constrained: too ambiguous to accept.
+    Ambiguous(u8),
     /// The alignment jumped implausibly far from the prediction (metres).
     Jump(f32),
 }
@@ -136,12 +223,11 @@ impl fmt::Display for LostReason {
                 write!(f, "only {:.0} % of the points match the map", x * 100.0)
             }
             LostReason::LargeError(e) => write!(f, "residual {:.1} mm is too large", e * 1e3),
-            LostReason::Degenerate(c) => {
-                write!(
-                    f,
-                    "the view does not constrain all six degrees of freedom (conditioning {c:.1e})"
-                )
-            }
+            LostReason::Ambiguous(n) => write!(
+                f,
+                "the pose found leaves {n} direction{} weakly constrained, too ambiguous to accept",
+                if *n == 1 { "" } else { "s" }
+            ),
             LostReason::Jump(d) => {
                 write!(f, "the pose jumped {:.0} cm from the prediction", d * 100.0)
             }
@@ -163,11 +249,50 @@ pub struct Tracked {
     /// How well the view constrains the pose (see
     /// [`super::icp::Equations::conditioning`]).
     pub conditioning: f64,
-    /// ICP iterations run, all levels.
+    /// ICP iterations run, all levels and attempts.
     pub iterations: usize,
+    /// Directions the view left weak, taken from the motion model (0–6).
+    pub weak_directions: u8,
+    /// The axes those directions move along most (bits of
+    /// [`super::degeneracy::AXES`]; [`super::degeneracy::axes_label`]
+    /// names them).
+    pub weak_axes: u8,
+    /// The pose was found from a keyframe after the camera was lost.
+    pub relocalised: bool,
 }
 
-/// Frame-to-model ICP tracker with a constant-velocity motion model.
+impl Tracked {
+    /// A frame the map's view gave nothing to align with.
+    fn empty(pose: Pose) -> Tracked {
+        Tracked {
+            pose,
+            lost: Some(LostReason::EmptyModel),
+            inlier_fraction: 0.0,
+            rms: 0.0,
+            conditioning: 0.0,
+            iterations: 0,
+            weak_directions: 0,
+            weak_axes: 0,
+            relocalised: false,
+        }
+    }
+}
+
+/// How an ICP run starts and is judged.
+#[derive(Clone, Copy, Debug, PartialEq)]
+enum Search {
+    /// Tracking: from the motion model, judged against the prediction.
+    Follow,
+    /// After a loss, near the last good pose: wider associations and
+    /// jumps, more coarse iterations, and the result verified.
+    Recover,
+    /// From a keyframe's pose: as [`Search::Recover`], but with no
+    /// prediction to jump from.
+    Relocalise,
+}
+
+/// Frame-to-model ICP tracker with a constant-velocity motion model and
+/// keyframe relocalisation.
 #[derive(Debug)]
 pub struct Tracker {
     config: TrackerConfig,
@@ -186,6 +311,11 @@ pub struct Tracker {
     velocity: Pose,
     /// Frames lost since the last good one.
     lost_streak: usize,
+    /// Whether `velocity` was measured (false at the start and after a
+    /// loss): without it, ICP starts from no motion and may need to travel
+    /// far, so the coarsest level gets more iterations.
+    velocity_known: bool,
+    keyframes: Keyframes,
 }
 
 impl Tracker {
@@ -206,6 +336,7 @@ impl Tracker {
         let finer = halved(config.model_halvings.saturating_sub(1));
         Ok(Tracker {
             filter: config.bilateral.map(Bilateral::new).transpose()?,
+            keyframes: Keyframes::new(config.relocalisation)?,
             model_intrinsics,
             fallback_intrinsics: (finer != model_intrinsics).then_some(finer),
             config,
@@ -216,6 +347,7 @@ impl Tracker {
             last_good: start,
             velocity: Pose::IDENTITY,
             lost_streak: 0,
+            velocity_known: false,
         })
     }
 
@@ -224,17 +356,28 @@ impl Tracker {
         self.last_good
     }
 
-    /// Aligns `depth` with what `map` predicts from the last good pose.
+    /// Keyframes learnt for relocalisation so far.
+    pub fn keyframes(&self) -> usize {
+        self.keyframes.len()
+    }
+
+    /// Aligns `depth` with what `map` predicts from the last good pose;
+    /// when the camera is lost, searches for it near its last pose and
+    /// then from the keyframes most like the frame.
     pub fn track(&mut self, depth: &DepthImage, map: &dyn Mapper) -> Tracked {
         self.prepare(depth);
-        let model = map.render_depth(&self.model_intrinsics, &self.last_good);
-        let mut result = self.align(&model, self.model_intrinsics);
-        if let (Some(_), Some(k)) = (result.lost, self.fallback_intrinsics) {
-            let model = map.render_depth(&k, &self.last_good);
-            let first = result.iterations;
-            result = self.align(&model, k);
-            result.iterations += first;
-        }
+        let result = if self.lost_streak == 0 {
+            self.follow(map)
+        } else {
+            let near = self.recover_near(map);
+            if near.lost.is_none() {
+                near
+            } else {
+                let mut found = self.relocalise_prepared(map);
+                found.iterations += near.iterations;
+                found
+            }
+        };
         self.conclude(result)
     }
 
@@ -244,11 +387,33 @@ impl Tracker {
     }
 
     /// Aligns `depth` with `model`, the map's depth seen from the last good
-    /// pose with [`Tracker::model_intrinsics`].
+    /// pose with [`Tracker::model_intrinsics`] (no finer view, no
+    /// relocalisation: there is no map to ask).
     pub fn track_against(&mut self, depth: &DepthImage, model: &DepthImage) -> Tracked {
         self.prepare(depth);
-        let result = self.align(model, self.model_intrinsics);
+        let result = if self.model_view(model, self.model_intrinsics) {
+            self.search_near()
+        } else {
+            Tracked::empty(self.last_good)
+        };
         self.conclude(result)
+    }
+
+    /// Learns `depth`, seen from `pose` (known, e.g. from the data), as a
+    /// keyframe for relocalisation unless one like it is known; whether it
+    /// was learnt. The tracking state is unchanged.
+    pub fn learn_keyframe(&mut self, depth: &DepthImage, pose: &Pose) -> bool {
+        self.prepare(depth);
+        self.keyframes
+            .learn(&self.frame.levels[LEVELS - 1].depth, pose)
+    }
+
+    /// Finds `depth`'s pose in `map` from the keyframes alone, with no
+    /// prior pose; the tracking state is unchanged. Lost when no candidate
+    /// passes verification.
+    pub fn relocalise(&mut self, depth: &DepthImage, map: &dyn Mapper) -> Tracked {
+        self.prepare(depth);
+        self.relocalise_prepared(map)
     }
 
     /// Filters `depth` and builds its pyramid.
@@ -263,47 +428,124 @@ impl Tracker {
         self.frame.build(input, &self.intrinsics, LEVELS);
     }
 
-    /// Aligns the prepared frame with `model` (seen with `model_k` from the
-    /// last good pose) and judges the result; the tracker's state is left
-    /// as it was. The returned pose is the frame's motion from the last
-    /// good pose.
-    fn align(&mut self, model: &DepthImage, model_k: Intrinsics) -> Tracked {
-        self.model.build(model, &model_k, LEVELS);
-        // Nothing to align with: judged once, without running ICP.
-        if self.model.levels[0]
+    /// Builds the model pyramid from `model` (seen with `k`); whether it
+    /// has any surface to align with.
+    fn model_view(&mut self, model: &DepthImage, k: Intrinsics) -> bool {
+        self.model.build(model, &k, LEVELS);
+        self.model.levels[0]
             .normals
             .iter()
-            .all(|n| *n == glam::Vec3::ZERO)
-        {
-            return Tracked {
-                pose: Pose::IDENTITY,
-                lost: Some(LostReason::EmptyModel),
-                inlier_fraction: 0.0,
-                rms: 0.0,
-                conditioning: 0.0,
-                iterations: 0,
-            };
+            .any(|n| *n != glam::Vec3::ZERO)
+    }
+
+    /// Tracking: the frame against the map's view from the last good pose,
+    /// then against a finer view if the first cannot align it or leaves
+    /// it poorly conditioned; the better of the two.
+    fn follow(&mut self, map: &dyn Mapper) -> Tracked {
+        let mut best: Option<Tracked> = None;
+        let mut iterations = 0;
+        for k in std::iter::once(self.model_intrinsics).chain(self.fallback_intrinsics) {
+            let model = map.render_depth(&k, &self.last_good);
+            if !self.model_view(&model, k) {
+                continue;
+            }
+            let t = self.icp(self.last_good, self.velocity, Search::Follow);
+            iterations += t.iterations;
+            let better = best.is_none_or(|b| {
+                (t.lost.is_none(), t.conditioning) > (b.lost.is_none(), b.conditioning)
+            });
+            if better {
+                best = Some(t);
+            }
+            if t.lost.is_none() && t.conditioning >= self.config.refine_conditioning {
+                break;
+            }
         }
+        let mut result = best.unwrap_or(Tracked::empty(self.last_good));
+        result.iterations = iterations;
+        result
+    }
+
+    /// After a loss: the frame against the map's view from the last good
+    /// pose.
+    fn recover_near(&mut self, map: &dyn Mapper) -> Tracked {
+        let model = map.render_depth(&self.model_intrinsics, &self.last_good);
+        if !self.model_view(&model, self.model_intrinsics) {
+            return Tracked::empty(self.last_good);
+        }
+        self.search_near()
+    }
+
+    /// ICP against the model view from the last good pose (built): from
+    /// the motion model when tracking; after a loss, first where the last
+    /// motion would have taken the camera, then at the last good pose.
+    fn search_near(&self) -> Tracked {
         if self.lost_streak == 0 {
-            return self.icp_from(self.velocity);
+            return self.icp(self.last_good, self.velocity, Search::Follow);
         }
-        // Recovering: the camera has most likely kept moving as it did
-        // before the loss; if not, it is near the last good pose.
         let frames = (self.lost_streak + 1).min(MAX_EXTRAPOLATED);
         let extrapolated = (0..frames).fold(Pose::IDENTITY, |m, _| m.compose(&self.velocity));
-        let moving = self.icp_from(extrapolated);
+        let moving = self.icp(self.last_good, extrapolated, Search::Recover);
         if moving.lost.is_none() {
             return moving;
         }
-        let mut still = self.icp_from(Pose::IDENTITY);
+        let mut still = self.icp(self.last_good, Pose::IDENTITY, Search::Recover);
         still.iterations += moving.iterations;
         still
     }
 
+    /// ICP from the poses of the keyframes most like the prepared frame,
+    /// each against the map's view from that pose; the verified result
+    /// with the most inliers, or the first failure.
+    fn relocalise_prepared(&mut self, map: &dyn Mapper) -> Tracked {
+        let candidates = self.keyframes.nearest(&self.frame.levels[LEVELS - 1].depth);
+        let mut tried: Vec<Pose> = Vec::with_capacity(candidates.len());
+        let mut best: Option<Tracked> = None;
+        let mut first_failure = Tracked::empty(self.last_good);
+        let mut iterations = 0;
+        for (pose, _) in candidates {
+            let seen = tried.iter().any(|p| {
+                let d = p.inverse().compose(&pose);
+                d.translation.length() < SAME_CANDIDATE && d.rotation_angle() < SAME_CANDIDATE
+            });
+            if seen {
+                continue;
+            }
+            tried.push(pose);
+            let model = map.render_depth(&self.model_intrinsics, &pose);
+            if !self.model_view(&model, self.model_intrinsics) {
+                continue;
+            }
+            let t = self.icp(pose, Pose::IDENTITY, Search::Relocalise);
+            iterations += t.iterations;
+            match t.lost {
+                None if best.is_none_or(|b| t.inlier_fraction > b.inlier_fraction) => {
+                    best = Some(t)
+                }
+                None => {}
+                Some(_) if first_failure.iterations == 0 => first_failure = t,
+                Some(_) => {}
+            }
+        }
+        let mut result = match best {
+            Some(t) => Tracked {
+                relocalised: true,
+                ..t
+            },
+            None => Tracked {
+                pose: self.last_good,
+                ..first_failure
+            },
+        };
+        result.iterations = iterations;
+        result
+    }
+
     /// Coarse-to-fine ICP of the prepared frame against the model pyramid,
-    /// from the frame motion `predicted`, and the verdict on its result.
-    fn icp_from(&self, predicted: Pose) -> Tracked {
-        let recovering = self.lost_streak > 0;
+    /// seen from `base`, starting from the frame motion `predicted` (from
+    /// `base`), and the verdict on its result, whose pose is absolute.
+    fn icp(&self, base: Pose, predicted: Pose, search: Search) -> Tracked {
+        let recovering = search != Search::Follow;
         let widen = if recovering { 2.0 } else { 1.0 };
         let assoc = Association {
             max_distance: self.config.max_distance * widen,
@@ -313,12 +555,18 @@ impl Tracker {
         let mut iterations = 0;
         // The last system solved: the alignment is judged by it (its
         // update, at convergence, is below the noise).
-        let mut eq = super::icp::Equations::default();
+        let mut eq = Equations::default();
+        let floor = self.config.weak_conditioning * SINGULAR;
         for (level, &count) in (0..LEVELS).rev().zip(&self.config.iterations) {
-            let extra = if recovering && level == LEVELS - 1 {
-                count
-            } else {
-                0
+            // Without a measured motion the start can be far off, and the
+            // coarsest level alone is too coarse to bring the frame in
+            // (a table is a few pixels there): every level may take ten
+            // times as many iterations. What they do not need, convergence
+            // leaves unused.
+            let extra = match (level == LEVELS - 1, recovering, self.velocity_known) {
+                (true, true, _) => count,
+                (_, false, false) => 9 * count,
+                _ => 0,
             };
             for _ in 0..count + extra {
                 eq = equations(
@@ -328,7 +576,10 @@ impl Tracker {
                     &assoc,
                 );
                 iterations += 1;
-                let Some((omega, t)) = eq.solve() else { break };
+                let Some(directions) = Directions::of(&eq) else {
+                    break;
+                };
+                let (omega, t) = directions.solve(floor);
                 relative = apply_motion(&relative, omega, t);
                 let rotation = omega.iter().map(|w| w * w).sum::<f64>().sqrt();
                 let translation = t.iter().map(|v| v * v).sum::<f64>().sqrt();
@@ -339,48 +590,99 @@ impl Tracker {
                 }
             }
         }
-        let inlier_fraction = eq.inliers as f64 / eq.candidates.max(1) as f64;
-        let rms = eq.rms();
-        let conditioning = eq.conditioning();
+        // What the view leaves weak at the pose found goes back to the
+        // prediction, if there is one: without a measured motion (the
+        // first frame) "no motion" is a guess, not a prediction.
+        let directions = Directions::of(&eq);
+        let weak = directions.map_or(Weak::default(), |d| d.weak(self.config.weak_conditioning));
+        let predicts = self.velocity_known || recovering;
+        if let (Some(d), true) = (directions, weak.count > 0 && predicts) {
+            let moved = relative.compose(&predicted.inverse());
+            let omega = moved.quat().to_scaled_axis();
+            let t = moved.translation;
+            let (omega, t) = d.without_weak(
+                (
+                    [omega.x, omega.y, omega.z].map(f64::from),
+                    [t.x, t.y, t.z].map(f64::from),
+                ),
+                self.config.weak_conditioning,
+            );
+            relative = apply_motion(&predicted, omega, t);
+        }
+        let mut inlier_fraction = eq.inliers as f64 / eq.candidates.max(1) as f64;
+        let mut rms = eq.rms();
         let jump = (relative.translation - predicted.translation).length();
-        let lost = if inlier_fraction < self.config.min_inlier_fraction {
+        // After a loss only the verification below judges the data.
+        let mut lost = if recovering {
+            None
+        } else if inlier_fraction < self.config.min_inlier_fraction {
             Some(LostReason::FewInliers(inlier_fraction))
         } else if rms > self.config.max_rms {
             Some(LostReason::LargeError(rms))
-        } else if conditioning < self.config.min_conditioning {
-            Some(LostReason::Degenerate(conditioning))
-        } else if jump > self.config.max_jump * widen {
+        } else if jump > self.config.max_jump {
             Some(LostReason::Jump(jump))
         } else {
             None
         };
+        if search == Search::Recover && jump > self.config.max_jump * widen {
+            lost = Some(LostReason::Jump(jump));
+        } else if recovering {
+            // Verified by depth agreement at the pose found: the frame at
+            // half resolution against the finest model level.
+            (inlier_fraction, rms) = agreement(
+                &self.frame.levels[1],
+                &self.model.levels[0],
+                &relative,
+                self.config.verify_distance,
+            );
+            lost = if inlier_fraction < self.config.verify_inlier_fraction {
+                Some(LostReason::FewInliers(inlier_fraction))
+            } else if rms > self.config.max_rms {
+                Some(LostReason::LargeError(rms))
+            } else if weak.count > 0 {
+                Some(LostReason::Ambiguous(weak.count))
+            } else {
+                None
+            };
+        }
         Tracked {
-            pose: relative,
+            pose: base.compose(&relative),
             lost,
             inlier_fraction,
             rms,
-            conditioning,
+            conditioning: eq.conditioning(),
             iterations,
+            weak_directions: weak.count,
+            weak_axes: weak.axes,
+            relocalised: false,
         }
     }
 
-    /// Moves the tracker on by an alignment from [`Tracker::align`]: to the
-    /// frame's pose when it was aligned, nowhere when it was lost.
+    /// Moves the tracker on by an alignment: to the frame's pose when it
+    /// was aligned (learning it as a keyframe when it was tracked well),
+    /// nowhere when it was lost.
     fn conclude(&mut self, result: Tracked) -> Tracked {
         let pose = match result.lost {
             None => {
-                let pose = self.last_good.compose(&result.pose);
                 // After a loss the motion spans several frames; the last
                 // frame-to-frame one is kept.
                 if self.lost_streak == 0 {
-                    self.velocity = result.pose;
+                    self.velocity = self.last_good.inverse().compose(&result.pose);
+                    self.velocity_known = true;
+                    if result.weak_directions == 0
+                        && result.inlier_fraction >= self.config.verify_inlier_fraction
+                    {
+                        self.keyframes
+                            .learn(&self.frame.levels[LEVELS - 1].depth, &result.pose);
+                    }
                 }
-                self.last_good = pose;
+                self.last_good = result.pose;
                 self.lost_streak = 0;
-                pose
+                result.pose
             }
             Some(_) => {
                 self.lost_streak += 1;
+                self.velocity_known = false;
                 self.last_good
             }
         };
@@ -451,10 +753,10 @@ mod tests {
 
     /// A map that is the scene itself, blind in views narrower than
     /// `blind_below` pixels.
-    struct SceneMap<'a> {
-        scene: &'a Scene,
-        blind_below: u32,
-        mesh: crate::mesh::Mesh,
+    pub(super) struct SceneMap<'a> {
+        pub(super) scene: &'a Scene,
+        pub(super) blind_below: u32,
+        pub(super) mesh: crate::mesh::Mesh,
     }
 
     impl Mapper for SceneMap<'_> {
@@ -553,26 +855,28 @@ mod tests {
     }
 
     #[test]
-    fn a_single_wall_is_reported_degenerate_instead_of_drifting() {
+    fn a_single_wall_is_tracked_with_its_weak_directions_from_the_motion_model() {
         let wall = scene("[[object]]\nshape = \"box\"\nsize = [20.0, 20.0, 0.1]\n");
         // Sliding along the wall, 2 m in front of it.
-        let poses: Vec<Pose> = (0..4)
+        let poses: Vec<Pose> = (0..5)
             .map(|i| {
                 let eye = Vec3::new(0.02 * i as f32, 0.0, 2.0);
                 Pose::look_at(eye, eye - Vec3::Z, Vec3::Y)
             })
             .collect();
-        let tracked = track_sequence(&wall, &poses);
-        for t in &tracked {
-            assert!(
-                matches!(t.lost, Some(LostReason::Degenerate(_))),
-                "{:?}",
-                t.lost
-            );
-            // The last good pose is kept: no drift, nothing non-finite.
-            assert_eq!(t.pose, poses[0]);
+        for t in track_sequence(&wall, &poses) {
+            // Not lost: nothing contradicts the map.
+            assert_eq!(t.lost, None);
+            // The two translations along the wall and the turn about its
+            // normal are weak.
+            assert_eq!(t.weak_directions, 3, "{t:?}");
+            assert_ne!(t.weak_axes, 0, "{t:?}");
+            // What the wall constrains is right: the distance to it.
+            assert!((t.pose.translation.z - 2.0).abs() < 1e-3, "{t:?}");
+            // What it does not comes from the motion model, which had no
+            // motion to go by: the camera stays where it started.
+            assert!(t.pose.translation.x.abs() < 1e-3, "{t:?}");
         }
-        assert!(tracked[0].lost.unwrap().to_string().contains("six degrees"));
     }
 
     #[test]
@@ -592,11 +896,296 @@ mod tests {
     #[test]
     fn rejects_bad_settings() {
         let k = Intrinsics::from_vertical_fov(320, 240, 60.0);
-        let config = TrackerConfig {
-            max_distance: -1.0,
-            ..TrackerConfig::default()
-        };
-        let e = Tracker::new(config, k, Pose::IDENTITY).unwrap_err();
-        assert!(e.to_string().contains("max_distance"));
+        let d = TrackerConfig::default;
+        let bad: Vec<(&str, TrackerConfig)> = vec![
+            (
+                "max_distance",
+                TrackerConfig {
+                    max_distance: -1.0,
+                    ..d()
+                },
+            ),
+            (
+                "max_normal_angle",
+                TrackerConfig {
+                    max_normal_angle: 0.0,
+                    ..d()
+                },
+            ),
+            (
+                "max_normal_angle",
+                TrackerConfig {
+                    max_normal_angle: 95.0,
+                    ..d()
+                },
+            ),
+            (
+                "min_inlier_fraction",
+                TrackerConfig {
+                    min_inlier_fraction: 1.0,
+                    ..d()
+                },
+            ),
+            (
+                "max_rms",
+                TrackerConfig {
+                    max_rms: f64::NAN,
+                    ..d()
+                },
+            ),
+            (
+                "weak_conditioning",
+                TrackerConfig {
+                    weak_conditioning: 0.5,
+                    ..d()
+                },
+            ),
+            (
+                "refine_conditioning",
+                TrackerConfig {
+                    refine_conditioning: -1.0,
+                    ..d()
+                },
+            ),
+            (
+                "max_jump",
+                TrackerConfig {
+                    max_jump: 0.0,
+                    ..d()
+                },
+            ),
+            (
+                "convergence",
+                TrackerConfig {
+                    convergence: -1.0,
+                    ..d()
+                },
+            ),
+            (
+                "model_halvings",
+                TrackerConfig {
+                    model_halvings: 5,
+                    ..d()
+                },
+            ),
+            (
+                "iterations",
+                TrackerConfig {
+                    iterations: [0, 0, 0],
+                    ..d()
+                },
+            ),
+            (
+                "iterations",
+                TrackerConfig {
+                    iterations: [1000, 3, 1],
+                    ..d()
+                },
+            ),
+            (
+                "verify_inlier_fraction",
+                TrackerConfig {
+                    verify_inlier_fraction: 2.0,
+                    ..d()
+                },
+            ),
+            (
+                "verify_distance",
+                TrackerConfig {
+                    verify_distance: 0.0,
+                    ..d()
+                },
+            ),
+            (
+                "relocalisation ferns",
+                TrackerConfig {
+                    relocalisation: FernConfig {
+                        ferns: 0,
+                        ..FernConfig::default()
+                    },
+                    ..d()
+                },
+            ),
+        ];
+        for (field, config) in bad {
+            let e = Tracker::new(config, k, Pose::IDENTITY).unwrap_err();
+            assert!(e.to_string().contains(field), "{field}: {e}");
+        }
+        assert!(Tracker::new(d(), k, Pose::IDENTITY).is_ok());
+    }
+}
+
+/// Tracking that does not give up: weak views, jumps, views the map cannot
+/// explain (issue "tracking that does not give up").
+#[cfg(test)]
+mod recovery_tests {
+    use super::tests::SceneMap;
+    use super::*;
+    use crate::sim::{NoiseModel, PathSpec, Scene, SceneOptions, SimulatedSensor};
+    use glam::Vec3;
+    use std::path::Path;
+
+    const ROOM: &str = include_str!("../../../../scenes/room.toml");
+    const TABLE: &str = include_str!("../../../../scenes/table.toml");
+    /// One floor and one small box: everything horizontal rests on the box.
+    const PLANE_AND_BOX: &str = r#"
+[helix]
+height = [0.8, 1.2]
+look_at = [[0.0, 0.2, 0.0], [0.0, 0.3, 0.0]]
+margin = 3.0
+turns = 2.0
+[[object]]
+shape = "box"
+size = [10.0, 0.1, 10.0]
+translation = [0.0, 0.05, 0.0]
+floor = true
+[[object]]
+shape = "box"
+size = [0.3, 0.25, 0.2]
+translation = [0.2, 0.225, -0.1]
+"#;
+
+    fn scene(text: &str) -> Scene {
+        Scene::parse(text, Path::new("test.toml"), &SceneOptions::default()).unwrap()
+    }
+
+    /// The scene itself as the map: what a perfect fusion would predict.
+    fn scene_map(scene: &Scene) -> SceneMap<'_> {
+        SceneMap {
+            scene,
+            blind_below: 0,
+            mesh: Default::default(),
+        }
+    }
+
+    fn error(a: &Pose, b: &Pose) -> (f32, f32) {
+        let d = a.inverse().compose(b);
+        (d.translation.length(), d.rotation_angle().to_degrees())
+    }
+
+    /// Tracks the first `count` poses of the scene's 200-pose helix (the
+    /// judged runs' speed: 10–16 cm a frame) with Kinect noise; the worst
+    /// position error.
+    fn track_helix(text: &str, count: usize) -> f32 {
+        let scene = scene(text);
+        let poses = PathSpec::Helix.build(&scene, 200).unwrap();
+        // The simulator's Kinect: at lower resolutions thin structures (a
+        // table top's edge) lose their normals.
+        let mut sensor = SimulatedSensor::kinect(NoiseModel::Kinect, 7);
+        let k = sensor.intrinsics;
+        let mut tracker = Tracker::new(TrackerConfig::default(), k, poses[0]).unwrap();
+        let map = scene_map(&scene);
+        let mut worst = 0.0f32;
+        for (i, pose) in poses.iter().enumerate().take(count).skip(1) {
+            let t = tracker.track(&sensor.capture(&scene, i as u32, pose).depth, &map);
+            assert_eq!(t.lost, None, "frame {i}");
+            worst = worst.max(error(&t.pose, pose).0);
+        }
+        worst
+    }
+
+    // The judged runs allow 1 cm of ATE with a fused map; against a perfect
+    // map the worst frame must stay within that (no margin needed: a weak
+    // view left to noise drifts by decimetres, see the table's history).
+    #[test]
+    fn the_table_scene_is_tracked_with_kinect_noise() {
+        let worst = track_helix(TABLE, 25);
+        assert!(worst < 0.01, "worst {:.1} mm", worst * 1e3);
+    }
+
+    #[test]
+    #[ignore = "known failure: the box constrains the orbit too weakly (conditioning 2e-5), \
+                the motion model drifts 18 cm in 25 frames"]
+    fn a_plane_with_one_small_object_is_tracked_with_kinect_noise() {
+        let worst = track_helix(PLANE_AND_BOX, 25);
+        assert!(worst < 0.01, "worst {:.1} mm", worst * 1e3);
+    }
+
+    /// A camera on a circle around the room, `degrees` around.
+    fn around_room(degrees: f32) -> Pose {
+        let a = degrees.to_radians();
+        let eye = Vec3::new(2.0 * a.cos(), 1.3, 2.0 * a.sin());
+        Pose::look_at(eye, Vec3::new(0.0, 0.4, 0.0), Vec3::Y)
+    }
+
+    #[test]
+    fn a_camera_that_jumps_is_found_again_within_ten_frames() {
+        let room = scene(ROOM);
+        let map = scene_map(&room);
+        let k = Intrinsics::from_vertical_fov(320, 240, 60.0);
+        let mut sensor = SimulatedSensor::new(k, 0.4, 6.0, NoiseModel::Kinect, 3).unwrap();
+        // 2° (7 cm) a frame out to 80°; the frames while the camera goes
+        // back are dropped, and it is next seen at 60°, 0.69 m away, then
+        // moving back the other way.
+        let out: Vec<Pose> = (0..=40).map(|i| around_room(2.0 * i as f32)).collect();
+        let back: Vec<Pose> = (0..12)
+            .map(|i| around_room(60.0 - 2.0 * i as f32))
+            .collect();
+        let jump = out[40].translation.distance(back[0].translation);
+        assert!((0.5..=1.0).contains(&jump), "{jump}");
+        let mut tracker = Tracker::new(TrackerConfig::default(), k, out[0]).unwrap();
+        for (i, pose) in out.iter().enumerate().skip(1) {
+            let t = tracker.track(&sensor.capture(&room, i as u32, pose).depth, &map);
+            assert_eq!(t.lost, None, "frame {i}");
+        }
+        assert!(tracker.keyframes() > 1);
+        let mut found_at = None;
+        for (i, pose) in back.iter().enumerate() {
+            let t = tracker.track(&sensor.capture(&room, 100 + i as u32, pose).depth, &map);
+            if t.lost.is_some() {
+                assert!(found_at.is_none(), "lost again at {i}: {:?}", t.lost);
+                continue;
+            }
+            // Whatever is accepted is right (2 cm, 1°: a few times the
+            // tracking error, far below a wrong basin).
+            let (dt, dr) = error(&t.pose, pose);
+            assert!(dt < 0.02 && dr < 1.0, "frame {i}: {dt} m, {dr}°");
+            found_at.get_or_insert(i);
+        }
+        let found_at = found_at.expect("never found again");
+        assert!(found_at < 10, "found after {found_at} frames");
+    }
+
+    #[test]
+    fn a_view_from_outside_the_mapped_area_is_never_accepted() {
+        let room = scene(ROOM);
+        // Another place: boxes in the air, no floor, nothing like the room.
+        let elsewhere = scene(
+            r#"
+[[object]]
+shape = "box"
+size = [0.6, 0.3, 0.4]
+translation = [0.3, 0.9, 0.2]
+[[object]]
+shape = "box"
+size = [0.2, 0.8, 0.2]
+translation = [-0.5, 0.6, -0.3]
+[[object]]
+shape = "sphere"
+radius = 0.3
+translation = [0.0, 0.3, 0.6]
+"#,
+        );
+        let k = Intrinsics::from_vertical_fov(320, 240, 60.0);
+        let mut sensor = SimulatedSensor::new(k, 0.4, 6.0, NoiseModel::Kinect, 5).unwrap();
+        let mut tracker = Tracker::new(TrackerConfig::default(), k, Pose::IDENTITY).unwrap();
+        for i in 0..36 {
+            let pose = around_room(10.0 * i as f32);
+            tracker.learn_keyframe(&sensor.capture(&room, i, &pose).depth, &pose);
+        }
+        assert!(tracker.keyframes() > 3);
+        // The map is the room; the frames show another place from the same
+        // kind of poses.
+        let map = scene_map(&room);
+        for i in 0..12 {
+            let pose = around_room(30.0 * i as f32);
+            let t = tracker.relocalise(&sensor.capture(&elsewhere, 50 + i, &pose).depth, &map);
+            assert!(t.lost.is_some(), "view {i} accepted at {:?}", t.pose);
+        }
+        // The room itself, from the same poses, is found.
+        let pose = around_room(95.0);
+        let t = tracker.relocalise(&sensor.capture(&room, 99, &pose).depth, &map);
+        assert_eq!(t.lost, None);
+        assert!(t.relocalised);
     }
 }

@@ -1,0 +1,144 @@
+//! `depthmesh eval relocalise`: how often a frame is found again in a map
+//! built from other frames, with no prior pose, and how often a wrong pose
+//! would be accepted.
+//!
+//! The map is built from the first range with the dataset's poses (TSDF),
+//! and its frames are offered to the tracker as keyframes; each query frame
+//! is then relocalised on its own ([`Tracker::relocalise`]). A query counts
+//! towards the success share only if the map can explain it: at least half
+//! of its measured pixels lie within 2 cm (along the ray) of the map's
+//! depth seen from its reference pose. Wrong acceptances are counted over
+//! all query frames.
+
+use anyhow::{bail, Context, Result};
+use clap::Args;
+use depthmesh::dataset::{Dataset, DatasetOptions, FrameRange};
+use depthmesh::map::Mapper;
+use depthmesh::track::{Tracker, TrackerConfig};
+use depthmesh::tsdf::mapper::TsdfMapper;
+use depthmesh::tsdf::TsdfConfig;
+use depthmesh::{DepthImage, Pose};
+use serde_json::json;
+use std::path::PathBuf;
+use std::time::Instant;
+
+/// A relocalised pose this close to the reference is correct (the 7-Scenes
+/// relocalisation papers' 5 cm / 5°).
+const CORRECT_METRES: f32 = 0.05;
+const CORRECT_DEGREES: f32 = 5.0;
+
+/// A pixel within this of the map's depth is explained by the map (metres).
+const EXPLAINED_METRES: f32 = 0.02;
+
+/// Flags of `depthmesh eval relocalise`.
+#[derive(Args, Debug)]
+pub struct RelocaliseArgs {
+    /// Dataset folder with poses (7-Scenes frames folder or TUM RGB-D folder).
+    pub dataset: PathBuf,
+    /// Frames that build the map, with their poses: A..B (half-open).
+    #[arg(long)]
+    pub map_frames: FrameRange,
+    /// Frames to relocalise: C..D (half-open).
+    #[arg(long)]
+    pub query_frames: FrameRange,
+    /// Relocalise every K-th query frame.
+    #[arg(long, default_value_t = 1)]
+    pub stride: usize,
+    /// Voxel size of the map in metres.
+    #[arg(long, default_value_t = 0.01)]
+    pub voxel: f32,
+}
+
+/// Runs `eval relocalise`, printing one JSON object.
+pub fn run(args: &RelocaliseArgs) -> Result<()> {
+    if args.stride == 0 {
+        bail!("--stride must be at least 1");
+    }
+    let open = |frames: FrameRange, stride: usize, flag: &str| -> Result<Dataset> {
+        let options = DatasetOptions {
+            frames: Some(frames),
+            stride,
+            ..DatasetOptions::default()
+        };
+        let dataset = Dataset::open(&args.dataset, &options)?;
+        if dataset.is_empty() {
+            bail!("{}: {flag} selects no frames", args.dataset.display());
+        }
+        Ok(dataset)
+    };
+    let mapped = open(args.map_frames, 1, "--map-frames")?;
+    let queries = open(args.query_frames, args.stride, "--query-frames")?;
+    let k = mapped.intrinsics();
+    let options = DatasetOptions::default();
+    let mut map = TsdfMapper::new(
+        TsdfConfig::new(args.voxel),
+        k,
+        options.depth_min,
+        options.depth_max,
+    )?;
+    let mut tracker = Tracker::new(TrackerConfig::default(), k, Pose::IDENTITY)?;
+    for i in 0..mapped.len() {
+        let frame = mapped.frame(i)?;
+        let Some(pose) = frame.pose else {
+            bail!("--map-frames: frame {} has no pose", frame.index);
+        };
+        map.integrate(&frame, &pose)
+            .with_context(|| format!("frame {}", frame.index))?;
+        tracker.learn_keyframe(&frame.depth, &pose);
+    }
+    let (mut explained, mut found, mut accepted, mut wrong) = (0usize, 0usize, 0usize, 0usize);
+    let mut seconds = Vec::with_capacity(queries.len());
+    for i in 0..queries.len() {
+        let frame = queries.frame(i)?;
+        let Some(reference) = frame.pose else {
+            bail!("--query-frames: frame {} has no pose", frame.index);
+        };
+        let start = Instant::now();
+        let t = tracker.relocalise(&frame.depth, &map);
+        seconds.push(start.elapsed().as_secs_f64());
+        let d = reference.inverse().compose(&t.pose);
+        let correct = d.translation.length() <= CORRECT_METRES
+            && d.rotation_angle().to_degrees() <= CORRECT_DEGREES;
+        let can_explain =
+            explained_fraction(&frame.depth, &map.render_depth(&k, &reference)) >= 0.5;
+        explained += usize::from(can_explain);
+        if t.lost.is_none() {
+            accepted += 1;
+            found += usize::from(correct && can_explain);
+            wrong += usize::from(!correct);
+        }
+    }
+    let n = seconds.len();
+    let mean_ms = seconds.iter().sum::<f64>() * 1e3 / n as f64;
+    let max_ms = seconds.iter().fold(0.0f64, |m, &s| m.max(s * 1e3));
+    println!(
+        "{}",
+        json!({
+            "map_frames": mapped.len(),
+            "keyframes": tracker.keyframes(),
+            "queries": n,
+            "explained": explained,
+            "found": found,
+            "found_share": found as f64 / explained.max(1) as f64,
+            "accepted": accepted,
+            "wrongly_accepted": wrong,
+            "wrong_share": wrong as f64 / n as f64,
+            "ms_per_attempt": mean_ms,
+            "ms_max": max_ms,
+        })
+    );
+    Ok(())
+}
+
+/// The fraction of `frame`'s measured pixels whose depth is within
+/// [`EXPLAINED_METRES`] of `model`'s (same camera and size).
+fn explained_fraction(frame: &DepthImage, model: &DepthImage) -> f64 {
+    let (mut measured, mut near) = (0usize, 0usize);
+    for (&z, &m) in frame.data.iter().zip(&model.data) {
+        if z > 0.0 {
+            measured += 1;
+            near += usize::from(m > 0.0 && (z - m).abs() <= EXPLAINED_METRES);
+        }
+    }
+    near as f64 / measured.max(1) as f64
+}
