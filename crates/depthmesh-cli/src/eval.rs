@@ -30,6 +30,12 @@ pub struct TrajectoryArgs {
     /// Print one JSON line instead of text.
     #[arg(long)]
     pub json: bool,
+    /// Fail (after printing the figures) when fewer than this share of the
+    /// reference's poses have an estimate: a run that lost most frames has
+    /// few poses to compare, and their error says nothing of the rest. 0
+    /// accepts any coverage.
+    #[arg(long, default_value_t = 0.5)]
+    pub min_coverage: f64,
 }
 
 /// Runs `eval`.
@@ -46,14 +52,24 @@ fn trajectory(args: &TrajectoryArgs) -> Result<()> {
             args.max_dt
         );
     }
+    if !(0.0..=1.0).contains(&args.min_coverage) {
+        bail!(
+            "--min-coverage must be a share in [0, 1], got {}",
+            args.min_coverage
+        );
+    }
     let estimate = read_tum(&args.estimate)?;
     let reference = read_reference(&args.reference)?;
     let e = trajectory_error(&estimate, &reference, args.max_dt)?;
+    let coverage = e.matched as f64 / reference.len() as f64;
     if args.json {
         println!(
             "{}",
             json!({
                 "matched": e.matched,
+                "estimated_poses": estimate.len(),
+                "reference_poses": reference.len(),
+                "coverage": coverage,
                 "ate_rmse_cm": e.ate_rmse * 100.0,
                 "ate_rmse_aligned_cm": e.ate_rmse_aligned * 100.0,
                 "ate_max_cm": e.ate_max * 100.0,
@@ -63,9 +79,11 @@ fn trajectory(args: &TrajectoryArgs) -> Result<()> {
         );
     } else {
         println!(
-            "matched {} of {} estimated poses",
+            "matched {} of {} estimated poses: {:.0} % of the reference's {} poses",
             e.matched,
-            estimate.len()
+            estimate.len(),
+            100.0 * coverage,
+            reference.len()
         );
         println!(
             "ATE RMSE {:.2} cm (max {:.2} cm); after rigid alignment {:.2} cm",
@@ -77,6 +95,16 @@ fn trajectory(args: &TrajectoryArgs) -> Result<()> {
             "RPE per step RMSE {:.2} mm, {:.3}°",
             e.rpe_translation * 1000.0,
             e.rpe_rotation_degrees
+        );
+    }
+    if coverage < args.min_coverage {
+        bail!(
+            "the estimate covers only {} of the reference's {} poses ({:.0} %, below --min-coverage {}): \
+             the frames the run lost have no estimate, so the error above describes only the frames it kept",
+            e.matched,
+            reference.len(),
+            100.0 * coverage,
+            args.min_coverage
         );
     }
     Ok(())

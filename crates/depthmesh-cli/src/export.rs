@@ -182,7 +182,7 @@ pub fn describe(report: &ExportReport) -> String {
     );
     if let Some(f) = &report.floor {
         line += &format!(
-            "; floor normal {:.3} {:.3} {:.3} levelled ({:.0} % of vertices on it)",
+            "; floor normal {:.3} {:.3} {:.3} levelled ({:.0} % of the surface on it)",
             f.normal.x,
             f.normal.y,
             f.normal.z,
