@@ -25,7 +25,7 @@ pub struct TrajectoryArgs {
     /// frames folder or TUM RGB-D folder) whose poses serve as reference.
     pub reference: PathBuf,
     /// Poses further apart in time than this (seconds) are not matched.
-    #[arg(long, default_value_t = 0.02)]
+    #[arg(long, default_value_t = 0.02, allow_negative_numbers = true)]
     pub max_dt: f64,
     /// Print one JSON line instead of text.
     #[arg(long)]
@@ -34,7 +34,7 @@ pub struct TrajectoryArgs {
     /// reference's poses have an estimate: a run that lost most frames has
     /// few poses to compare, and their error says nothing of the rest. 0
     /// accepts any coverage.
-    #[arg(long, default_value_t = 0.5)]
+    #[arg(long, default_value_t = 0.5, allow_negative_numbers = true)]
     pub min_coverage: f64,
 }
 

@@ -8,6 +8,7 @@ mod draw;
 mod eval;
 mod export;
 mod map_args;
+mod out_dir;
 mod planes;
 mod progress;
 mod reconstruct;
@@ -42,7 +43,8 @@ enum Command {
     Reconstruct(reconstruct::ReconstructArgs),
     /// Run the thesis's experiments on the built-in scenes and summarise them.
     Demo(demo::DemoArgs),
-    /// Measure speed on generated data (figures as JSON).
+    /// Measure speed (figures as JSON): MABDI on a generated scene, voxel
+    /// planes and depth codecs on a recorded dataset.
     #[command(subcommand)]
     Bench(bench::BenchCommand),
     /// Measure accuracy against a reference (trajectories).

@@ -29,10 +29,10 @@ pub struct MapArgs {
     #[arg(long, value_enum, default_value_t = RealMap::Tsdf)]
     pub map: RealMap,
     /// Voxel size in metres (tsdf).
-    #[arg(long, default_value_t = 0.01)]
+    #[arg(long, default_value_t = 0.01, allow_negative_numbers = true)]
     pub voxel: f32,
     /// Truncation distance in metres (tsdf; default 4 voxels).
-    #[arg(long)]
+    #[arg(long, allow_negative_numbers = true)]
     pub trunc: Option<f32>,
     /// Keep colour from the colour images (tsdf; 3 more bytes per voxel).
     #[arg(long)]

@@ -4,6 +4,7 @@
 use crate::dataset_args::DatasetArgs;
 use crate::export::RunExportArgs;
 use crate::map_args::MapArgs;
+use crate::out_dir::OutDir;
 use crate::progress;
 use crate::run::{failed_to_track, print_summary, report_event};
 use crate::status::StatusWriter;
@@ -35,9 +36,12 @@ pub struct ReconstructArgs {
     /// Go on past unreadable frames, reporting them.
     #[arg(long)]
     pub skip_bad_frames: bool,
-    /// Output folder.
+    /// Output folder: new, empty, or an earlier run's with --force.
     #[arg(long)]
     pub out: PathBuf,
+    /// Replace an earlier run in --out (without it, a folder holding one is refused).
+    #[arg(long)]
+    pub force: bool,
     #[command(flatten)]
     pub export: RunExportArgs,
 }
@@ -58,6 +62,13 @@ pub fn run(args: &ReconstructArgs, quiet: bool) -> Result<()> {
     if dataset.is_empty() {
         bail!("{}: no frames selected", args.dataset.display());
     }
+    if args.map.color && dataset.frame(0)?.color.is_none() {
+        bail!(
+            "--color: {} has no colour image for its first frame (7-Scenes: \
+             frame-NNNNNN.color.jpg or .png; TUM: rgb.txt); without one the mesh would be black",
+            args.dataset.display()
+        );
+    }
     let k = dataset.intrinsics();
     let mut session = Session::new(SessionConfig {
         intrinsics: k,
@@ -65,12 +76,15 @@ pub fn run(args: &ReconstructArgs, quiet: bool) -> Result<()> {
         tracking: args.track.then(TrackerConfig::default),
     })?;
     args.map.bounded.note_reach(&session);
+    let out = OutDir::prepare(&args.out, args.force)?;
     let mut files = RunFiles::create(&args.out, &session)?;
     let mut status = StatusWriter::new(args.status_every, files.path("status"));
     let bar = progress::bar(dataset.len() as u64, "reconstruct", quiet);
     let mut frames = dataset.frames();
+    let mut colourless = 0;
     for frame in frames.by_ref() {
         let frame = frame?;
+        colourless += usize::from(args.map.color && frame.color.is_none());
         let outcome = session
             .push(&frame)
             .with_context(|| format!("frame {}", frame.index))?;
@@ -81,6 +95,9 @@ pub fn run(args: &ReconstructArgs, quiet: bool) -> Result<()> {
         bar.inc(1);
     }
     bar.finish_and_clear();
+    if colourless > 0 {
+        eprintln!("warning: --color: {colourless} frame(s) had no colour image and left no colour");
+    }
     for s in frames.skipped() {
         eprintln!("skipped frame {}: {}", s.index, s.error);
     }
@@ -96,6 +113,8 @@ pub fn run(args: &ReconstructArgs, quiet: bool) -> Result<()> {
     );
     let summary = files.finish(&mut session, summary)?;
     args.export.write(session.mesh(), &args.out)?;
+    // A run that lost tracking keeps its files: they show what happened.
+    out.keep();
     print_summary(&summary, &args.out, quiet);
     if failed_to_track(&session) {
         bail!("tracking lost the camera: nothing past the first frame was fused");

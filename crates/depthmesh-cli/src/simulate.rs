@@ -3,6 +3,7 @@
 
 use crate::bounded::ActiveRadiusArgs;
 use crate::export::RunExportArgs;
+use crate::out_dir::OutDir;
 use crate::planes::PlanesArgs;
 use crate::progress;
 use crate::run::{failed_to_track, print_summary, report_event};
@@ -63,7 +64,7 @@ pub struct SimulateArgs {
     #[arg(long)]
     pub dynamic: bool,
     /// Seed of the noise.
-    #[arg(long, default_value_t = 0)]
+    #[arg(long, default_value_t = 0, allow_negative_numbers = true)]
     pub seed: u64,
     /// Mesh file for `${bunny}` in scene files (e.g. the Stanford bunny PLY).
     #[arg(long)]
@@ -72,13 +73,13 @@ pub struct SimulateArgs {
     #[arg(long, default_value = "helix")]
     pub path: PathSpec,
     /// Novelty threshold in metres (default: the thesis's 0.01 in normalised depth, ≈ 0.01·z² m).
-    #[arg(long)]
+    #[arg(long, allow_negative_numbers = true)]
     pub threshold: Option<f32>,
     /// Keep triangles the sensor sees through (the thesis's behaviour) instead of removing them.
     #[arg(long)]
     pub keep_removed: bool,
     /// Voxel size in metres (tsdf; truncation 4 voxels).
-    #[arg(long, default_value_t = 0.01)]
+    #[arg(long, default_value_t = 0.01, allow_negative_numbers = true)]
     pub voxel: f32,
     /// Estimate poses by ICP against the map (only the first pose of the
     /// path is given); `trajectory.txt` then holds the estimates,
@@ -94,9 +95,12 @@ pub struct SimulateArgs {
     /// dashboard's third-person camera.
     #[arg(long)]
     pub view: bool,
-    /// Output folder.
+    /// Output folder: new, empty, or an earlier run's with --force.
     #[arg(long)]
     pub out: PathBuf,
+    /// Replace an earlier run in --out (without it, a folder holding one is refused).
+    #[arg(long)]
+    pub force: bool,
     #[command(flatten)]
     pub export: RunExportArgs,
     #[command(flatten)]
@@ -166,6 +170,7 @@ pub fn run_scene(args: &SimulateArgs, scene: &Scene, quiet: bool) -> Result<RunS
         tracking: args.track.then(TrackerConfig::default),
     })?;
     args.bounded.note_reach(&session);
+    let out = OutDir::prepare(&args.out, args.force)?;
     let mut files = RunFiles::create(&args.out, &session)?;
     let mut dashboard = args
         .dashboard
@@ -249,6 +254,8 @@ pub fn run_scene(args: &SimulateArgs, scene: &Scene, quiet: bool) -> Result<RunS
     }
     let summary = files.finish(&mut session, summary)?;
     args.export.write(session.mesh(), &args.out)?;
+    // A run that lost tracking keeps its files: they show what happened.
+    out.keep();
     print_summary(&summary, &args.out, quiet);
     if failed_to_track(&session) {
         bail!("tracking lost the camera: nothing past the first frame was fused");

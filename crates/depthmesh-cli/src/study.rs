@@ -63,7 +63,7 @@ pub struct StudyArgs {
     )]
     pub voxels: Vec<f32>,
     /// Seed of the held-out pixel choice and of the simulated noise.
-    #[arg(long, default_value_t = 0)]
+    #[arg(long, default_value_t = 0, allow_negative_numbers = true)]
     pub seed: u64,
     /// Output folder: runtime_vs_points.png, error_vs_size.png, study.csv, study.md.
     #[arg(long)]

@@ -102,3 +102,182 @@ fn align_floor_keeps_a_level_floor_level() {
     assert!(high.abs() < 1e-3 || low.abs() < 1e-3, "{low} {high}");
     std::fs::remove_dir_all(dir).unwrap();
 }
+
+#[test]
+fn colour_from_a_folder_without_colour_images_is_refused_before_any_output() {
+    let dir = scratch("nc-colourless");
+    common::simulated_frames_folder(&dir, 2);
+    for i in 0..2 {
+        std::fs::remove_file(dir.join(format!("frame-{i:06}.color.png"))).unwrap();
+    }
+    let out = dir.join("out");
+    let run = depthmesh(&[
+        "reconstruct",
+        arg(&dir),
+        "--color",
+        "--quiet",
+        "--out",
+        arg(&out),
+    ]);
+    assert_fails_with(&run, &["--color", "no colour image"]);
+    assert!(!out.exists(), "a refused run left {}", out.display());
+    std::fs::remove_dir_all(dir).unwrap();
+}
+
+#[test]
+fn export_refuses_a_format_its_file_name_contradicts() {
+    let dir = scratch("nc-ext");
+    let input = dir.join("in.ply");
+    depthmesh::mesh::io::write_mesh(&input, &common::table_scene().world_mesh(1).0).unwrap();
+    let out = dir.join("x.stl");
+    let run = depthmesh(&["export", arg(&input), "-o", arg(&out), "--format", "glb"]);
+    assert_fails_with(&run, &["--format glb", ".stl"]);
+    assert!(!out.exists());
+    // Agreeing, any case of the extension is fine.
+    ok(&depthmesh(&[
+        "export",
+        arg(&input),
+        "-o",
+        arg(&dir.join("x.GLB")),
+        "--format",
+        "glb",
+        "--quiet",
+    ]));
+    std::fs::remove_dir_all(dir).unwrap();
+}
+
+#[test]
+fn negative_numbers_reach_the_flag_they_follow() {
+    // Without `=`, `-1` is the value of --seed, refused as a seed by name
+    // rather than taken for an unknown flag.
+    let run = depthmesh(&[
+        "simulate",
+        "--scene",
+        "../../scenes/table.toml",
+        "--seed",
+        "-1",
+        "--out",
+        "/nonexistent/never",
+    ]);
+    assert_fails_with(&run, &["'-1'", "--seed"]);
+    let run = depthmesh(&[
+        "simulate",
+        "--scene",
+        "../../scenes/table.toml",
+        "--map",
+        "tsdf",
+        "--voxel",
+        "-0.01",
+        "--out",
+        "/nonexistent/never",
+    ]);
+    assert_fails_with(&run, &["--voxel"]);
+}
+
+#[test]
+fn bench_flags_mean_what_they_mean_elsewhere() {
+    let dir = scratch("nc-bench");
+    common::simulated_frames_folder(&dir, 2);
+    // --frames is a range, as in reconstruct; past the data it is refused,
+    // not silently cut short.
+    let run = depthmesh(&["bench", "planes", arg(&dir), "--frames", "0..5"]);
+    assert_fails_with(&run, &["--frames 0..5", "only 2"]);
+    let run = depthmesh(&[
+        "bench",
+        "planes",
+        arg(&dir),
+        "--frames",
+        "0..2",
+        "--repeats",
+        "1",
+    ]);
+    ok(&run);
+    let help = depthmesh(&["bench", "planes", "--help"]);
+    let help = String::from_utf8_lossy(&help.stdout);
+    assert!(!help.contains("--voxel "), "{help}");
+    assert!(help.contains("A..B"), "{help}");
+    // An output path that is a file: the error names the flag.
+    let file = dir.join("taken");
+    std::fs::write(&file, "").unwrap();
+    let run = depthmesh(&[
+        "bench",
+        "mabdi",
+        "--min-triangles",
+        "1000",
+        "--iterations",
+        "1",
+        "--out",
+        arg(&file),
+    ]);
+    assert_fails_with(&run, &["--out", "taken"]);
+    std::fs::remove_dir_all(dir).unwrap();
+}
+
+/// `simulate` of the table scene into `out`, with `extra` flags.
+fn simulate(out: &Path, extra: &[&str]) -> std::process::Output {
+    let mut args = vec![
+        "simulate",
+        "--scene",
+        "../../scenes/table.toml",
+        "--map",
+        "planes",
+        "--iterations",
+        "2",
+        "--quiet",
+        "--out",
+        out.to_str().unwrap(),
+    ];
+    args.extend_from_slice(extra);
+    depthmesh(&args)
+}
+
+#[test]
+fn an_output_folder_holds_one_run() {
+    let dir = scratch("nc-out");
+    let out = dir.join("run");
+    ok(&simulate(&out, &["--view"]));
+    assert!(out.join("view.png").is_file());
+    // A second run into it is refused without --force, naming the flag,
+    // and leaves the first run as it was.
+    assert_fails_with(&simulate(&out, &[]), &["--out", "--force"]);
+    assert!(out.join("view.png").is_file());
+    // With --force it replaces the whole run: no stale view.png.
+    ok(&simulate(&out, &["--force"]));
+    assert!(out.join("summary.json").is_file());
+    assert!(!out.join("view.png").exists(), "a stale view.png stayed");
+    // A folder of other files is never replaced.
+    let other = dir.join("other");
+    std::fs::create_dir_all(&other).unwrap();
+    std::fs::write(other.join("notes.txt"), "mine").unwrap();
+    assert_fails_with(&simulate(&other, &["--force"]), &["not a run's"]);
+    assert!(other.join("notes.txt").is_file());
+    // A run that fails after it started (frame 1 has no pose) removes
+    // the folder it made.
+    let frames = dir.join("frames");
+    std::fs::create_dir_all(&frames).unwrap();
+    common::simulated_frames_folder(&frames, 3);
+    std::fs::remove_file(frames.join("frame-000001.pose.txt")).unwrap();
+    let failed = dir.join("failed");
+    let run = depthmesh(&[
+        "reconstruct",
+        arg(&frames),
+        "--voxel",
+        "0.05",
+        "--quiet",
+        "--out",
+        arg(&failed),
+    ]);
+    assert_fails_with(&run, &["frame-000001.pose.txt"]);
+    assert!(!failed.exists(), "a failed run left {}", failed.display());
+    std::fs::remove_dir_all(dir).unwrap();
+}
+
+#[test]
+fn demo_checks_its_inputs_and_folders_before_the_first_run() {
+    let dir = scratch("nc-demo");
+    let out = dir.join("demo");
+    let run = depthmesh(&["demo", "--bunny", "missing.ply", "--out", arg(&out)]);
+    assert_fails_with(&run, &["--bunny missing.ply"]);
+    assert!(!out.exists(), "the demo started before checking --bunny");
+    std::fs::remove_dir_all(dir).unwrap();
+}
