@@ -111,6 +111,7 @@ pub fn run(args: &DemoArgs, quiet: bool) -> Result<()> {
             force: args.force,
             export: Default::default(),
             bounded: Default::default(),
+            memory: Default::default(),
         };
         out_dir::check(&sim.out, sim.force)?;
         let scene = simulate::load_scene(

@@ -8,6 +8,7 @@ mod draw;
 mod eval;
 mod export;
 mod map_args;
+mod memory;
 mod out_dir;
 mod planes;
 mod progress;

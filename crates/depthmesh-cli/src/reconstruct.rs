@@ -4,6 +4,7 @@
 use crate::dataset_args::DatasetArgs;
 use crate::export::RunExportArgs;
 use crate::map_args::MapArgs;
+use crate::memory::MemoryArgs;
 use crate::out_dir::OutDir;
 use crate::progress;
 use crate::run::{failed_to_track, print_summary, report_event};
@@ -44,6 +45,8 @@ pub struct ReconstructArgs {
     pub force: bool,
     #[command(flatten)]
     pub export: RunExportArgs,
+    #[command(flatten)]
+    pub memory: MemoryArgs,
 }
 
 /// Runs `reconstruct`.
@@ -70,9 +73,11 @@ pub fn run(args: &ReconstructArgs, quiet: bool) -> Result<()> {
         );
     }
     let k = dataset.intrinsics();
+    let map = args.map.config(k);
+    args.memory.check_map(&map, &k, dataset.len())?;
     let mut session = Session::new(SessionConfig {
         intrinsics: k,
-        map: args.map.config(k),
+        map,
         tracking: args.track.then(TrackerConfig::default),
     })?;
     args.map.bounded.note_reach(&session);
@@ -82,6 +87,7 @@ pub fn run(args: &ReconstructArgs, quiet: bool) -> Result<()> {
     let bar = progress::bar(dataset.len() as u64, "reconstruct", quiet);
     let mut frames = dataset.frames();
     let mut colourless = 0;
+    let mut stopped = None;
     for frame in frames.by_ref() {
         let frame = frame?;
         colourless += usize::from(args.map.color && frame.color.is_none());
@@ -93,6 +99,11 @@ pub fn run(args: &ReconstructArgs, quiet: bool) -> Result<()> {
         files.after_frame(&mut session)?;
         status.after_frame(&session, &k, pose, frame.index)?;
         bar.inc(1);
+        if let Some(why) = args.memory.exceeded(&session) {
+            bar.suspend(|| eprintln!("frame {}: {why}: stopping", frame.index));
+            stopped = Some((frame.index, why));
+            break;
+        }
     }
     bar.finish_and_clear();
     if colourless > 0 {
@@ -107,6 +118,9 @@ pub fn run(args: &ReconstructArgs, quiet: bool) -> Result<()> {
     let mut summary = Map::new();
     summary.insert("dataset".into(), args.dataset.display().to_string().into());
     summary.insert("skipped_frames".into(), json!(frames.skipped().len()));
+    if let Some((index, _)) = &stopped {
+        summary.insert("stopped_at_frame".into(), json!(index));
+    }
     summary.insert(
         "integrate_fps".into(),
         json!(session.records().len() as f64 / session.seconds()),
@@ -116,6 +130,9 @@ pub fn run(args: &ReconstructArgs, quiet: bool) -> Result<()> {
     // A run that lost tracking keeps its files: they show what happened.
     out.keep();
     print_summary(&summary, &args.out, quiet);
+    if let Some((index, why)) = stopped {
+        bail!("stopped after frame {index}: {why}; the files hold the frames up to it");
+    }
     if failed_to_track(&session) {
         bail!("tracking lost the camera: nothing past the first frame was fused");
     }

@@ -3,6 +3,7 @@
 
 use crate::bounded::ActiveRadiusArgs;
 use crate::export::RunExportArgs;
+use crate::memory::MemoryArgs;
 use crate::out_dir::OutDir;
 use crate::planes::PlanesArgs;
 use crate::progress;
@@ -105,6 +106,8 @@ pub struct SimulateArgs {
     pub export: RunExportArgs,
     #[command(flatten)]
     pub bounded: ActiveRadiusArgs,
+    #[command(flatten)]
+    pub memory: MemoryArgs,
 }
 
 /// What a finished run reports to the caller (the demo's table).
@@ -164,9 +167,12 @@ pub fn run_scene(args: &SimulateArgs, scene: &Scene, quiet: bool) -> Result<RunS
     }
     let poses = args.path.build(scene, args.iterations)?;
     let mut sensor = SimulatedSensor::kinect(args.noise, args.seed);
+    let map = map_config(args, &sensor);
+    args.memory
+        .check_map(&map, &sensor.intrinsics, poses.len())?;
     let mut session = Session::new(SessionConfig {
         intrinsics: sensor.intrinsics,
-        map: map_config(args, &sensor),
+        map,
         tracking: args.track.then(TrackerConfig::default),
     })?;
     args.bounded.note_reach(&session);
@@ -187,6 +193,7 @@ pub fn run_scene(args: &SimulateArgs, scene: &Scene, quiet: bool) -> Result<RunS
 
     let bar = progress::bar(poses.len() as u64, scene.name.as_str(), quiet);
     let mut sensor_seconds = 0.0;
+    let mut stopped = None;
     for (i, truth) in poses.iter().enumerate() {
         let iteration = i as u32 + 1;
         let start = Instant::now();
@@ -204,6 +211,11 @@ pub fn run_scene(args: &SimulateArgs, scene: &Scene, quiet: bool) -> Result<RunS
         let elements = session.records().last().map_or(0, |r| r.total_elements);
         bar.set_message(format!("{elements} elements"));
         bar.inc(1);
+        if let Some(why) = args.memory.exceeded(&session) {
+            bar.suspend(|| eprintln!("iteration {iteration}: {why}: stopping"));
+            stopped = Some((iteration, why));
+            break;
+        }
     }
     bar.finish_and_clear();
 
@@ -224,6 +236,9 @@ pub fn run_scene(args: &SimulateArgs, scene: &Scene, quiet: bool) -> Result<RunS
     summary.insert("seed".into(), args.seed.into());
     summary.insert("dynamic".into(), args.dynamic.into());
     summary.insert("path".into(), args.path.to_string().into());
+    if let Some((iteration, _)) = &stopped {
+        summary.insert("stopped_at_iteration".into(), json!(iteration));
+    }
     if args.track {
         // The true poses beside the estimated ones, and how far apart they
         // are over every frame (a lost frame counts at its last good pose).
@@ -257,6 +272,9 @@ pub fn run_scene(args: &SimulateArgs, scene: &Scene, quiet: bool) -> Result<RunS
     // A run that lost tracking keeps its files: they show what happened.
     out.keep();
     print_summary(&summary, &args.out, quiet);
+    if let Some((iteration, why)) = stopped {
+        bail!("stopped after iteration {iteration}: {why}; the files hold the iterations up to it");
+    }
     if failed_to_track(&session) {
         bail!("tracking lost the camera: nothing past the first frame was fused");
     }

@@ -281,3 +281,51 @@ fn demo_checks_its_inputs_and_folders_before_the_first_run() {
     assert!(!out.exists(), "the demo started before checking --bunny");
     std::fs::remove_dir_all(dir).unwrap();
 }
+
+#[test]
+fn millimetres_typed_as_metres_are_refused_with_the_estimate() {
+    let dir = scratch("nc-voxel");
+    common::simulated_frames_folder(&dir, 2);
+    let out = dir.join("out");
+    // 0.1 mm voxels: each of the two 160×120 frames puts every pixel's
+    // truncation band into blocks of its own: estimated 150 MiB for the
+    // two, measured 103 MiB (the frames share some blocks); a
+    // 640×480 frame alone takes about 1.2 GiB. The budget is given, so
+    // the machine does not matter.
+    let run = depthmesh(&[
+        "reconstruct",
+        arg(&dir),
+        "--voxel",
+        "0.0001",
+        "--max-memory",
+        "64M",
+        "--out",
+        arg(&out),
+    ]);
+    assert_fails_with(&run, &["--voxel", "0.1 mm", "150.0 MiB", "--max-memory"]);
+    assert!(!out.exists());
+    // The same frames at 1 cm fit easily.
+    ok(&depthmesh(&[
+        "reconstruct",
+        arg(&dir),
+        "--max-memory",
+        "4G",
+        "--quiet",
+        "--out",
+        arg(&out),
+    ]));
+    std::fs::remove_dir_all(dir).unwrap();
+}
+
+#[test]
+fn a_run_that_reaches_its_memory_budget_stops_and_writes_what_it_has() {
+    let dir = scratch("nc-budget");
+    let out = dir.join("run");
+    let run = simulate(&out, &["--max-memory", "1K"]);
+    assert_fails_with(&run, &["--max-memory", "stopped after iteration 1"]);
+    let summary = common::summary(&out);
+    assert_eq!(summary["stopped_at_iteration"], 1);
+    assert_eq!(summary["frames"], 1);
+    assert!(out.join("mesh.ply").is_file());
+    std::fs::remove_dir_all(dir).unwrap();
+}

@@ -96,7 +96,7 @@ fn surface_samples(mesh: &Mesh) -> Vec<(Vec3, Vec3)> {
         total += f64::from(mesh.triangle_area(t));
         cumulative.push(total);
     }
-    if !(total > 0.0) {
+    if total <= 0.0 {
         let mut normals = mesh.normals.clone();
         if normals.len() != mesh.vertex_count() {
             let mut m = mesh.clone();

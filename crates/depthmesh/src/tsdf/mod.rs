@@ -30,6 +30,13 @@ pub const BLOCK_VOXELS: usize = BLOCK * BLOCK * BLOCK;
 /// Scale of the stored distance: ±1 (the truncation) maps to ±32767.
 const TSDF_SCALE: f32 = 32767.0;
 
+/// Axial depth noise (σ, metres) of a structured-light depth camera at `z`
+/// metres (Nguyen, Izadi and Lovell 2012, the Kinect): the spread a map's
+/// truncation bands take over many frames.
+fn depth_noise(z: f64) -> f64 {
+    0.0012 + 0.0019 * (z - 0.4).powi(2)
+}
+
 /// Parameters of the fusion.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct TsdfConfig {
@@ -52,6 +59,36 @@ impl TsdfConfig {
             max_weight: 1024,
             color: false,
         }
+    }
+
+    /// Bytes a voxel takes: a distance and a weight, and a colour if kept.
+    pub fn bytes_per_voxel(&self) -> usize {
+        if self.color {
+            7
+        } else {
+            4
+        }
+    }
+
+    /// About how many bytes of voxels mapping `frames` frames of camera `k`
+    /// with depths up to `depth_max` metres allocates: the least of two
+    /// bounds. Each frame allocates at most the blocks its truncation band
+    /// crosses, a block column per block-wide patch of the view at
+    /// `depth_max` (at most one per pixel); and frames of one view fuse into
+    /// the same columns, but a depth camera's noise spreads their bands over
+    /// ±3σ. A moving camera sees more than one view, so this is a floor for
+    /// refusing settings no machine can hold, not a promise.
+    pub fn estimate_bytes(&self, k: &Intrinsics, depth_max: f32, frames: usize) -> f64 {
+        let side = f64::from(self.voxel) * BLOCK as f64;
+        let z = f64::from(depth_max);
+        let across = |pixels: u32, f: f32| f64::from(pixels) * z / (f64::from(f) * side) + 1.0;
+        let columns = (across(k.width, k.fx) * across(k.height, k.fy))
+            .min(f64::from(k.width) * f64::from(k.height));
+        let blocks_along = |band: f64| (band / side).ceil() + 1.0;
+        let per_frame = blocks_along(2.0 * f64::from(self.truncation));
+        let fused = blocks_along((6.0 * depth_noise(z)).max(2.0 * f64::from(self.truncation)));
+        let blocks = columns * (per_frame * frames as f64).min(fused);
+        blocks * (BLOCK_VOXELS * self.bytes_per_voxel()) as f64
     }
 
     /// Rejects sizes that make no sense.
@@ -204,9 +241,9 @@ impl TsdfVolume {
         point.clamp(lo, lo + side).distance(point)
     }
 
-    /// Bytes held by the voxels (4 per voxel, 7 with colour).
+    /// Bytes held by the voxels (see [`TsdfConfig::bytes_per_voxel`]).
     pub fn voxel_bytes(&self) -> usize {
-        self.blocks.len() * BLOCK_VOXELS * if self.config.color { 7 } else { 4 }
+        self.blocks.len() * BLOCK_VOXELS * self.config.bytes_per_voxel()
     }
 
     /// World position of voxel `(x, y, z)` of the block with `key`.
