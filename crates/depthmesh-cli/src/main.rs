@@ -96,6 +96,8 @@ const FLAGS: &[(&str, &str)] = &[
     ("stride", "--stride"),
     ("depth_min", "--depth-min"),
     ("depth_max", "--depth-max"),
+    ("depth_scale", "--depth-scale"),
+    ("min_weight", "--min-weight"),
     ("frames", "--frames"),
     ("intrinsics", "--intrinsics"),
     ("ratio", "--ratio"),

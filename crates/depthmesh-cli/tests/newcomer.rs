@@ -329,3 +329,131 @@ fn a_run_that_reaches_its_memory_budget_stops_and_writes_what_it_has() {
     assert!(out.join("mesh.ply").is_file());
     std::fs::remove_dir_all(dir).unwrap();
 }
+
+/// Rewrites every depth PNG of a frames folder from millimetres to units
+/// of 1/5000 m (TUM's).
+fn to_fifth_millimetres(dir: &Path) {
+    for entry in std::fs::read_dir(dir).unwrap() {
+        let path = entry.unwrap().path();
+        if !path.to_string_lossy().ends_with(".depth.png") {
+            continue;
+        }
+        let decoder =
+            png::Decoder::new(std::io::BufReader::new(std::fs::File::open(&path).unwrap()));
+        let mut reader = decoder.read_info().unwrap();
+        let mut buf = vec![0; reader.output_buffer_size()];
+        let info = reader.next_frame(&mut buf).unwrap();
+        let data: Vec<u8> = buf[..info.buffer_size()]
+            .chunks(2)
+            .flat_map(|b| (u16::from_be_bytes([b[0], b[1]]) * 5).to_be_bytes())
+            .collect();
+        let mut encoder = png::Encoder::new(
+            std::fs::File::create(&path).unwrap(),
+            info.width,
+            info.height,
+        );
+        encoder.set_color(png::ColorType::Grayscale);
+        encoder.set_depth(png::BitDepth::Sixteen);
+        encoder
+            .write_header()
+            .unwrap()
+            .write_image_data(&data)
+            .unwrap();
+    }
+}
+
+/// Share of `out`'s mesh within 1 cm of the simulated table scene.
+fn within_1cm(out: &Path) -> f64 {
+    let mesh = read_mesh(&out.join("mesh.ply")).unwrap();
+    let truth = common::table_scene().world_mesh(3).0;
+    depthmesh::eval::fraction_within(&mesh, &truth, 0.01, 0.01).unwrap_or(0.0)
+}
+
+#[test]
+fn depth_scale_reads_folders_that_are_not_in_millimetres() {
+    let dir = scratch("nc-scale");
+    common::simulated_frames_folder(&dir, 2);
+    to_fifth_millimetres(&dir);
+    let run = |out: &Path, extra: &[&str]| {
+        let mut args = vec![
+            "reconstruct",
+            arg(&dir),
+            "--voxel",
+            "0.02",
+            "--depth-max",
+            "20",
+            "--quiet",
+            "--out",
+            out.to_str().unwrap(),
+        ];
+        args.extend_from_slice(extra);
+        ok(&depthmesh(&args));
+        within_1cm(out)
+    };
+    // Read as millimetres the scene is five times too deep: next to none
+    // of it is where the table is. With the right scale it is (the
+    // millimetre folder gives 99 % within 1 cm at these settings).
+    let wrong = run(&dir.join("mm"), &[]);
+    let right = run(&dir.join("scaled"), &["--depth-scale", "5000"]);
+    assert!(wrong < 0.2, "{wrong}");
+    assert!(right > 0.95, "{right}");
+    let bad = depthmesh(&[
+        "reconstruct",
+        arg(&dir),
+        "--depth-scale",
+        "0",
+        "--out",
+        arg(&dir.join("bad")),
+    ]);
+    assert_fails_with(&bad, &["--depth-scale"]);
+    std::fs::remove_dir_all(dir).unwrap();
+}
+
+#[test]
+fn min_weight_meshes_only_surface_seen_often_enough() {
+    let dir = scratch("nc-weight");
+    common::simulated_frames_folder(&dir, 3);
+    let run = |name: &str, weight: &str| {
+        let out = dir.join(name);
+        ok(&depthmesh(&[
+            "reconstruct",
+            arg(&dir),
+            "--voxel",
+            "0.02",
+            "--min-weight",
+            weight,
+            "--quiet",
+            "--out",
+            arg(&out),
+        ]));
+        common::summary(&out)["triangles"].as_u64().unwrap()
+    };
+    let all = run("w1", "1");
+    let twice = run("w2", "2");
+    // Three frames along the helix: each sees surface the others do not,
+    // so requiring two observations drops some, but most is seen twice.
+    assert!(twice < all && twice * 2 > all, "{twice} of {all}");
+    // More observations than there are frames: nothing to mesh.
+    assert_eq!(run("w4", "4"), 0);
+    let bad = depthmesh(&[
+        "reconstruct",
+        arg(&dir),
+        "--min-weight",
+        "0",
+        "--out",
+        arg(&dir.join("bad")),
+    ]);
+    assert_fails_with(&bad, &["--min-weight"]);
+    let bad = depthmesh(&[
+        "reconstruct",
+        arg(&dir),
+        "--map",
+        "planes",
+        "--min-weight",
+        "2",
+        "--out",
+        arg(&dir.join("bad")),
+    ]);
+    assert_fails_with(&bad, &["--min-weight"]);
+    std::fs::remove_dir_all(dir).unwrap();
+}

@@ -48,6 +48,10 @@ pub struct TsdfConfig {
     pub max_weight: u16,
     /// Keep an RGB colour per voxel (3 more bytes) from the frames' colour images.
     pub color: bool,
+    /// Marching cubes meshes only voxels fused at least this often (Open3D's
+    /// `weight_threshold`): above 1 it drops surface seen once, such as
+    /// flying pixels, at the cost of surface at the edge of the views.
+    pub min_weight: u16,
 }
 
 impl TsdfConfig {
@@ -58,6 +62,7 @@ impl TsdfConfig {
             truncation: 4.0 * voxel,
             max_weight: 1024,
             color: false,
+            min_weight: 1,
         }
     }
 
@@ -110,6 +115,15 @@ impl TsdfConfig {
         }
         if self.max_weight == 0 {
             return Err(Error::parameter("max weight", "must be at least 1"));
+        }
+        if !(1..=self.max_weight).contains(&self.min_weight) {
+            return Err(Error::parameter(
+                "min_weight",
+                format!(
+                    "must be between 1 and the largest weight {}, got {}",
+                    self.max_weight, self.min_weight
+                ),
+            ));
         }
         Ok(())
     }
