@@ -43,8 +43,8 @@ pub enum Up {
 #[derive(Args, Debug, Clone)]
 pub struct AssetArgs {
     /// Keep this fraction of each chunk's triangles, in (0, 1] (seams and
-    /// borders locked).
-    #[arg(long, allow_negative_numbers = true)]
+    /// borders locked); `simplify --ratio` in the simplify command.
+    #[arg(long, alias = "ratio", allow_negative_numbers = true)]
     pub simplify: Option<f32>,
     /// Most vertices per chunk (65,535: 16-bit indices, Unreal Engine 3's limit).
     #[arg(long, default_value_t = DEFAULT_MAX_VERTICES)]

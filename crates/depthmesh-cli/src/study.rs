@@ -52,8 +52,9 @@ pub struct StudyArgs {
     /// Use every K-th frame of the dataset.
     #[arg(long, default_value_t = 10)]
     pub stride: usize,
-    /// Simulated frames of the table scene (Kinect noise, the helix path).
-    #[arg(long, default_value_t = 30)]
+    /// Simulated frames of the table scene (Kinect noise, the helix path),
+    /// as `simulate --iterations`.
+    #[arg(long = "iterations", alias = "sim-iterations", default_value_t = 30)]
     pub sim_iterations: u32,
     /// Voxel sizes in metres, used by both methods.
     #[arg(
@@ -119,7 +120,7 @@ pub fn run(args: &StudyArgs, quiet: bool) -> Result<()> {
         bail!("--voxels must list positive sizes in metres");
     }
     if args.stride == 0 || args.sim_iterations == 0 {
-        bail!("--stride and --sim-iterations must be at least 1");
+        bail!("--stride and --iterations must be at least 1");
     }
     let mut sources = Vec::new();
     if let Some(path) = &args.dataset {

@@ -457,3 +457,53 @@ fn min_weight_meshes_only_surface_seen_often_enough() {
     assert_fails_with(&bad, &["--min-weight"]);
     std::fs::remove_dir_all(dir).unwrap();
 }
+
+#[test]
+fn one_name_per_meaning_across_commands() {
+    let dir = scratch("nc-names");
+    let input = dir.join("in.ply");
+    depthmesh::mesh::io::write_mesh(&input, &common::table_scene().world_mesh(1).0).unwrap();
+    let triangles = read_mesh(&input).unwrap().triangle_count();
+    // A fraction of the triangles kept is `--ratio` to `simplify` and
+    // `--simplify` to `export`; each command takes the other's name too.
+    for (command, flag, out) in [
+        ("simplify", "--simplify", "a.ply"),
+        ("simplify", "--ratio", "b.ply"),
+        ("export", "--ratio", "c.glb"),
+        ("export", "--simplify", "d.glb"),
+    ] {
+        let out = dir.join(out);
+        ok(&depthmesh(&[
+            command,
+            arg(&input),
+            "-o",
+            arg(&out),
+            flag,
+            "0.5",
+            "--quiet",
+        ]));
+        let kept = read_mesh(&out).unwrap().triangle_count();
+        assert!(kept < triangles, "{command} {flag}: {kept} of {triangles}");
+    }
+    // The study's simulated frames are --iterations, as in simulate.
+    let help = depthmesh(&["study", "--help"]);
+    let help = String::from_utf8_lossy(&help.stdout);
+    assert!(
+        help.contains("--iterations") && !help.contains("--sim-iterations"),
+        "{help}"
+    );
+    // A library error about a field comes out as the flag that sets it.
+    common::simulated_frames_folder(&dir, 1);
+    let run = depthmesh(&[
+        "reconstruct",
+        arg(&dir),
+        "--map",
+        "planes",
+        "--plane-voxel",
+        "0",
+        "--out",
+        arg(&dir.join("out")),
+    ]);
+    assert_fails_with(&run, &["--plane-voxel"]);
+    std::fs::remove_dir_all(dir).unwrap();
+}
