@@ -507,3 +507,51 @@ fn one_name_per_meaning_across_commands() {
     assert_fails_with(&run, &["--plane-voxel"]);
     std::fs::remove_dir_all(dir).unwrap();
 }
+
+#[test]
+fn a_run_that_lost_the_camera_reads_as_lost_on_the_terminal_and_in_eval() {
+    let dir = scratch("nc-lost");
+    // Sliding along a flat wall: nothing constrains the slide, so ICP
+    // must report every frame after the first lost.
+    std::fs::write(
+        dir.join("wall.toml"),
+        "[[object]]\nname = \"wall\"\nshape = \"box\"\nsize = [20.0, 20.0, 0.1]\n",
+    )
+    .unwrap();
+    let poses: String = (0..6)
+        .map(|i| format!("{i} {} 0 -2 0 0 0 1\n", 0.02 * i as f32))
+        .collect();
+    std::fs::write(dir.join("path.txt"), poses).unwrap();
+    let out = dir.join("out");
+    let path = format!("tum:{}", dir.join("path.txt").display());
+    let run = depthmesh(&[
+        "simulate",
+        "--scene",
+        arg(&dir.join("wall.toml")),
+        "--map",
+        "tsdf",
+        "--voxel",
+        "0.02",
+        "--track",
+        "--path",
+        &path,
+        "--iterations",
+        "6",
+        "--out",
+        arg(&out),
+    ]);
+    // The closing line (not silenced: no --quiet) says how much was lost.
+    assert_fails_with(
+        &run,
+        &["6 frames (1 fused)", "5 frame(s) not fused (17 % fused)"],
+    );
+    // And eval, given the run's own files, will not call it accurate.
+    let eval = depthmesh(&[
+        "eval",
+        "trajectory",
+        arg(&out.join("trajectory.txt")),
+        arg(&out.join("groundtruth.txt")),
+    ]);
+    assert_fails_with(&eval, &["covers only 1 of the reference's 6 poses"]);
+    std::fs::remove_dir_all(dir).unwrap();
+}
