@@ -12,6 +12,21 @@ fn arg(p: &Path) -> &str {
     p.to_str().unwrap()
 }
 
+/// `reconstruct` of the frames folder `dir` into `out` with `flags`.
+fn reconstruct(dir: &Path, out: &Path, flags: &[&str]) -> std::process::Output {
+    let mut args = vec!["reconstruct", arg(dir), "--out", arg(out)];
+    args.extend_from_slice(flags);
+    depthmesh(&args)
+}
+
+/// `reconstruct` of `dir` with `flags` fails with every one of `needles`
+/// and leaves no output folder.
+fn refused(dir: &Path, flags: &[&str], needles: &[&str]) {
+    let out = dir.join("refused");
+    assert_fails_with(&reconstruct(dir, &out, flags), needles);
+    assert!(!out.exists(), "a refused run left {}", out.display());
+}
+
 /// A TUM trajectory of `n` poses one second apart along x.
 fn tum_line(n: usize) -> String {
     (0..n)
@@ -110,17 +125,11 @@ fn colour_from_a_folder_without_colour_images_is_refused_before_any_output() {
     for i in 0..2 {
         std::fs::remove_file(dir.join(format!("frame-{i:06}.color.png"))).unwrap();
     }
-    let out = dir.join("out");
-    let run = depthmesh(&[
-        "reconstruct",
-        arg(&dir),
-        "--color",
-        "--quiet",
-        "--out",
-        arg(&out),
-    ]);
-    assert_fails_with(&run, &["--color", "no colour image"]);
-    assert!(!out.exists(), "a refused run left {}", out.display());
+    refused(
+        &dir,
+        &["--color", "--quiet"],
+        &["--color", "no colour image"],
+    );
     std::fs::remove_dir_all(dir).unwrap();
 }
 
@@ -257,18 +266,11 @@ fn an_output_folder_holds_one_run() {
     std::fs::create_dir_all(&frames).unwrap();
     common::simulated_frames_folder(&frames, 3);
     std::fs::remove_file(frames.join("frame-000001.pose.txt")).unwrap();
-    let failed = dir.join("failed");
-    let run = depthmesh(&[
-        "reconstruct",
-        arg(&frames),
-        "--voxel",
-        "0.05",
-        "--quiet",
-        "--out",
-        arg(&failed),
-    ]);
-    assert_fails_with(&run, &["frame-000001.pose.txt"]);
-    assert!(!failed.exists(), "a failed run left {}", failed.display());
+    refused(
+        &frames,
+        &["--voxel", "0.05", "--quiet"],
+        &["frame-000001.pose.txt"],
+    );
     std::fs::remove_dir_all(dir).unwrap();
 }
 
@@ -292,28 +294,11 @@ fn millimetres_typed_as_metres_are_refused_with_the_estimate() {
     // two, measured 103 MiB (the frames share some blocks); a
     // 640×480 frame alone takes about 1.2 GiB. The budget is given, so
     // the machine does not matter.
-    let run = depthmesh(&[
-        "reconstruct",
-        arg(&dir),
-        "--voxel",
-        "0.0001",
-        "--max-memory",
-        "64M",
-        "--out",
-        arg(&out),
-    ]);
+    let run = reconstruct(&dir, &out, &["--voxel", "0.0001", "--max-memory", "64M"]);
     assert_fails_with(&run, &["--voxel", "0.1 mm", "150.0 MiB", "--max-memory"]);
     assert!(!out.exists());
     // The same frames at 1 cm fit easily.
-    ok(&depthmesh(&[
-        "reconstruct",
-        arg(&dir),
-        "--max-memory",
-        "4G",
-        "--quiet",
-        "--out",
-        arg(&out),
-    ]));
+    ok(&reconstruct(&dir, &out, &["--max-memory", "4G", "--quiet"]));
     std::fs::remove_dir_all(dir).unwrap();
 }
 
@@ -343,22 +328,11 @@ fn to_fifth_millimetres(dir: &Path) {
         let mut reader = decoder.read_info().unwrap();
         let mut buf = vec![0; reader.output_buffer_size()];
         let info = reader.next_frame(&mut buf).unwrap();
-        let data: Vec<u8> = buf[..info.buffer_size()]
+        let values: Vec<u16> = buf[..info.buffer_size()]
             .chunks(2)
-            .flat_map(|b| (u16::from_be_bytes([b[0], b[1]]) * 5).to_be_bytes())
+            .map(|b| u16::from_be_bytes([b[0], b[1]]) * 5)
             .collect();
-        let mut encoder = png::Encoder::new(
-            std::fs::File::create(&path).unwrap(),
-            info.width,
-            info.height,
-        );
-        encoder.set_color(png::ColorType::Grayscale);
-        encoder.set_depth(png::BitDepth::Sixteen);
-        encoder
-            .write_header()
-            .unwrap()
-            .write_image_data(&data)
-            .unwrap();
+        common::write_depth_png(&path, info.width, info.height, &values);
     }
 }
 
@@ -397,15 +371,7 @@ fn depth_scale_reads_folders_that_are_not_in_millimetres() {
     let right = run(&dir.join("scaled"), &["--depth-scale", "5000"]);
     assert!(wrong < 0.2, "{wrong}");
     assert!(right > 0.95, "{right}");
-    let bad = depthmesh(&[
-        "reconstruct",
-        arg(&dir),
-        "--depth-scale",
-        "0",
-        "--out",
-        arg(&dir.join("bad")),
-    ]);
-    assert_fails_with(&bad, &["--depth-scale"]);
+    refused(&dir, &["--depth-scale", "0"], &["--depth-scale"]);
     std::fs::remove_dir_all(dir).unwrap();
 }
 
@@ -415,17 +381,11 @@ fn min_weight_meshes_only_surface_seen_often_enough() {
     common::simulated_frames_folder(&dir, 3);
     let run = |name: &str, weight: &str| {
         let out = dir.join(name);
-        ok(&depthmesh(&[
-            "reconstruct",
-            arg(&dir),
-            "--voxel",
-            "0.02",
-            "--min-weight",
-            weight,
-            "--quiet",
-            "--out",
-            arg(&out),
-        ]));
+        ok(&reconstruct(
+            &dir,
+            &out,
+            &["--voxel", "0.02", "--min-weight", weight, "--quiet"],
+        ));
         common::summary(&out)["triangles"].as_u64().unwrap()
     };
     let all = run("w1", "1");
@@ -435,26 +395,12 @@ fn min_weight_meshes_only_surface_seen_often_enough() {
     assert!(twice < all && twice * 2 > all, "{twice} of {all}");
     // More observations than there are frames: nothing to mesh.
     assert_eq!(run("w4", "4"), 0);
-    let bad = depthmesh(&[
-        "reconstruct",
-        arg(&dir),
-        "--min-weight",
-        "0",
-        "--out",
-        arg(&dir.join("bad")),
-    ]);
-    assert_fails_with(&bad, &["--min-weight"]);
-    let bad = depthmesh(&[
-        "reconstruct",
-        arg(&dir),
-        "--map",
-        "planes",
-        "--min-weight",
-        "2",
-        "--out",
-        arg(&dir.join("bad")),
-    ]);
-    assert_fails_with(&bad, &["--min-weight"]);
+    refused(&dir, &["--min-weight", "0"], &["--min-weight"]);
+    refused(
+        &dir,
+        &["--map", "planes", "--min-weight", "2"],
+        &["--min-weight"],
+    );
     std::fs::remove_dir_all(dir).unwrap();
 }
 
@@ -485,6 +431,13 @@ fn one_name_per_meaning_across_commands() {
         let kept = read_mesh(&out).unwrap().triangle_count();
         assert!(kept < triangles, "{command} {flag}: {kept} of {triangles}");
     }
+    // A library error about a field comes out as the flag that sets it.
+    common::simulated_frames_folder(&dir, 1);
+    refused(
+        &dir,
+        &["--map", "planes", "--plane-voxel", "0"],
+        &["--plane-voxel"],
+    );
     // The study's simulated frames are --iterations, as in simulate.
     let help = depthmesh(&["study", "--help"]);
     let help = String::from_utf8_lossy(&help.stdout);
@@ -492,54 +445,13 @@ fn one_name_per_meaning_across_commands() {
         help.contains("--iterations") && !help.contains("--sim-iterations"),
         "{help}"
     );
-    // A library error about a field comes out as the flag that sets it.
-    common::simulated_frames_folder(&dir, 1);
-    let run = depthmesh(&[
-        "reconstruct",
-        arg(&dir),
-        "--map",
-        "planes",
-        "--plane-voxel",
-        "0",
-        "--out",
-        arg(&dir.join("out")),
-    ]);
-    assert_fails_with(&run, &["--plane-voxel"]);
     std::fs::remove_dir_all(dir).unwrap();
 }
 
 #[test]
 fn a_run_that_lost_the_camera_reads_as_lost_on_the_terminal_and_in_eval() {
     let dir = scratch("nc-lost");
-    // Sliding along a flat wall: nothing constrains the slide, so ICP
-    // must report every frame after the first lost.
-    std::fs::write(
-        dir.join("wall.toml"),
-        "[[object]]\nname = \"wall\"\nshape = \"box\"\nsize = [20.0, 20.0, 0.1]\n",
-    )
-    .unwrap();
-    let poses: String = (0..6)
-        .map(|i| format!("{i} {} 0 -2 0 0 0 1\n", 0.02 * i as f32))
-        .collect();
-    std::fs::write(dir.join("path.txt"), poses).unwrap();
-    let out = dir.join("out");
-    let path = format!("tum:{}", dir.join("path.txt").display());
-    let run = depthmesh(&[
-        "simulate",
-        "--scene",
-        arg(&dir.join("wall.toml")),
-        "--map",
-        "tsdf",
-        "--voxel",
-        "0.02",
-        "--track",
-        "--path",
-        &path,
-        "--iterations",
-        "6",
-        "--out",
-        arg(&out),
-    ]);
+    let (run, out) = common::slide_along_a_wall(&dir, &[]);
     // The closing line (not silenced: no --quiet) says how much was lost.
     assert_fails_with(
         &run,

@@ -100,35 +100,7 @@ fn eval_measures_a_known_offset_in_centimetres() {
 #[test]
 fn staring_at_a_flat_wall_is_reported_lost_not_fused() {
     let dir = scratch("track-wall");
-    std::fs::write(
-        dir.join("wall.toml"),
-        "[[object]]\nname = \"wall\"\nshape = \"box\"\nsize = [20.0, 20.0, 0.1]\n",
-    )
-    .unwrap();
-    // Sliding along the wall 2 m in front of it, looking at it.
-    let poses: String = (0..6)
-        .map(|i| format!("{i} {} 0 -2 0 0 0 1\n", 0.02 * i as f32))
-        .collect();
-    std::fs::write(dir.join("path.txt"), poses).unwrap();
-    let out = dir.join("out");
-    let path = format!("tum:{}", dir.join("path.txt").display());
-    let run = depthmesh(&[
-        "simulate",
-        "--scene",
-        dir.join("wall.toml").to_str().unwrap(),
-        "--map",
-        "tsdf",
-        "--voxel",
-        "0.02",
-        "--track",
-        "--path",
-        &path,
-        "--iterations",
-        "6",
-        "--quiet",
-        "--out",
-        out.to_str().unwrap(),
-    ]);
+    let (run, out) = common::slide_along_a_wall(&dir, &["--quiet"]);
     // A run that fused nothing past its first frame is a failure, with its
     // files written so the person can see why.
     assert!(!run.status.success());

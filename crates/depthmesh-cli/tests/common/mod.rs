@@ -69,6 +69,55 @@ pub fn scene_colour(p: glam::Vec3) -> [u8; 3] {
     }
 }
 
+/// Writes a 16-bit greyscale depth PNG.
+#[allow(dead_code)] // not every test file needs it
+pub fn write_depth_png(path: &Path, width: u32, height: u32, values: &[u16]) {
+    let bytes: Vec<u8> = values.iter().flat_map(|v| v.to_be_bytes()).collect();
+    let mut encoder = png::Encoder::new(std::fs::File::create(path).unwrap(), width, height);
+    encoder.set_color(png::ColorType::Grayscale);
+    encoder.set_depth(png::BitDepth::Sixteen);
+    let mut writer = encoder.write_header().unwrap();
+    writer.write_image_data(&bytes).unwrap();
+}
+
+/// `simulate --map tsdf --track` of a camera sliding 2 cm a frame along a
+/// flat wall 2 m in front of it, 6 frames, into `dir/out`, with `extra`
+/// flags: nothing constrains the slide, so ICP must report every frame
+/// after the first lost. Returns the run and its output folder.
+#[allow(dead_code)] // not every test file needs it
+pub fn slide_along_a_wall(dir: &Path, extra: &[&str]) -> (Output, PathBuf) {
+    std::fs::write(
+        dir.join("wall.toml"),
+        "[[object]]\nname = \"wall\"\nshape = \"box\"\nsize = [20.0, 20.0, 0.1]\n",
+    )
+    .unwrap();
+    let poses: String = (0..6)
+        .map(|i| format!("{i} {} 0 -2 0 0 0 1\n", 0.02 * i as f32))
+        .collect();
+    std::fs::write(dir.join("path.txt"), poses).unwrap();
+    let out = dir.join("out");
+    let path = format!("tum:{}", dir.join("path.txt").display());
+    let scene = dir.join("wall.toml");
+    let mut args = vec![
+        "simulate",
+        "--scene",
+        scene.to_str().unwrap(),
+        "--map",
+        "tsdf",
+        "--voxel",
+        "0.02",
+        "--track",
+        "--path",
+        &path,
+        "--iterations",
+        "6",
+        "--out",
+        out.to_str().unwrap(),
+    ];
+    args.extend_from_slice(extra);
+    (depthmesh(&args), out)
+}
+
 /// Writes an 8-bit RGB PNG.
 #[allow(dead_code)] // not every test file needs it
 pub fn write_rgb_png(path: &Path, width: u32, height: u32, rgb: &[u8]) {
@@ -103,21 +152,14 @@ pub fn simulated_frames_folder(dir: &Path, frames: u32) {
         .enumerate()
     {
         let frame = sensor.capture(&scene, i as u32 + 1, pose);
-        let mm: Vec<u8> = frame
+        let mm: Vec<u16> = frame
             .depth
             .data
             .iter()
-            .flat_map(|d| ((d * 1000.0).round() as u16).to_be_bytes())
+            .map(|d| (d * 1000.0).round() as u16)
             .collect();
-        let file = std::fs::File::create(dir.join(format!("frame-{i:06}.depth.png"))).unwrap();
-        let mut encoder = png::Encoder::new(file, k.width, k.height);
-        encoder.set_color(png::ColorType::Grayscale);
-        encoder.set_depth(png::BitDepth::Sixteen);
-        encoder
-            .write_header()
-            .unwrap()
-            .write_image_data(&mm)
-            .unwrap();
+        let depth = dir.join(format!("frame-{i:06}.depth.png"));
+        write_depth_png(&depth, k.width, k.height, &mm);
         let rgb: Vec<u8> = (0..k.height)
             .flat_map(|v| (0..k.width).map(move |u| (u, v)))
             .zip(&frame.depth.data)
