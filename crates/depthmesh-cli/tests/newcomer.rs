@@ -281,6 +281,13 @@ fn demo_checks_its_inputs_and_folders_before_the_first_run() {
     let run = depthmesh(&["demo", "--bunny", "missing.ply", "--out", arg(&out)]);
     assert_fails_with(&run, &["--bunny missing.ply"]);
     assert!(!out.exists(), "the demo started before checking --bunny");
+    // An earlier demo's run folder is refused without --force, untouched.
+    let earlier = out.join("run1-table").join("summary.json");
+    std::fs::create_dir_all(earlier.parent().unwrap()).unwrap();
+    std::fs::write(&earlier, "{}").unwrap();
+    let run = depthmesh(&["demo", "--out", arg(&out)]);
+    assert_fails_with(&run, &["run1-table", "--force"]);
+    assert_eq!(std::fs::read_to_string(&earlier).unwrap(), "{}");
     std::fs::remove_dir_all(dir).unwrap();
 }
 
