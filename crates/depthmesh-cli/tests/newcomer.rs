@@ -297,12 +297,12 @@ fn millimetres_typed_as_metres_are_refused_with_the_estimate() {
     common::simulated_frames_folder(&dir, 2);
     let out = dir.join("out");
     // 0.1 mm voxels: each of the two 160×120 frames puts every pixel's
-    // truncation band into blocks of its own: estimated 150 MiB for the
+    // truncation band into blocks of its own: estimated 300 MiB for the
     // two, measured 103 MiB (the frames share some blocks); a
     // 640×480 frame alone takes about 1.2 GiB. The budget is given, so
     // the machine does not matter.
     let run = reconstruct(&dir, &out, &["--voxel", "0.0001", "--max-memory", "64M"]);
-    assert_fails_with(&run, &["--voxel", "0.1 mm", "150.0 MiB", "--max-memory"]);
+    assert_fails_with(&run, &["--voxel", "0.1 mm", "300.0 MiB", "--max-memory"]);
     assert!(!out.exists());
     // The same frames at 1 cm fit easily.
     ok(&reconstruct(&dir, &out, &["--max-memory", "4G", "--quiet"]));

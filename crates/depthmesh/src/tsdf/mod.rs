@@ -78,8 +78,8 @@ impl TsdfConfig {
     /// About how many bytes of voxels mapping `frames` frames of camera `k`
     /// with depths up to `depth_max` metres allocates: the least of two
     /// bounds. Each frame allocates at most the blocks its truncation band
-    /// crosses, a block column per block-wide patch of the view at
-    /// `depth_max` (at most one per pixel); and frames of one view fuse into
+    /// crosses (along the steepest ray), a block column per block-wide patch
+    /// of the view at `depth_max` (at most one per pixel); and frames of one view fuse into
     /// the same columns, but a depth camera's noise spreads their bands over
     /// ±3σ. A moving camera sees more than one view, so this is a floor for
     /// refusing settings no machine can hold, not a promise.
@@ -89,7 +89,14 @@ impl TsdfConfig {
         let across = |pixels: u32, f: f32| f64::from(pixels) * z / (f64::from(f) * side) + 1.0;
         let columns = (across(k.width, k.fx) * across(k.height, k.fy))
             .min(f64::from(k.width) * f64::from(k.height));
-        let blocks_along = |band: f64| (band / side).ceil() + 1.0;
+        // A band of depth `band` along the steepest (corner) ray crosses
+        // block faces across the view as well as along it.
+        let slope = |size: u32, c: f32, f: f32| f64::from(c.max(size as f32 - c) / f);
+        let (sx, sy) = (slope(k.width, k.cx, k.fx), slope(k.height, k.cy, k.fy));
+        let blocks_along = |band: f64| {
+            let crossings = |length: f64| (length / side).ceil();
+            crossings(band) + crossings(band * sx) + crossings(band * sy) + 1.0
+        };
         let per_frame = blocks_along(2.0 * f64::from(self.truncation));
         let fused = blocks_along((6.0 * depth_noise(z)).max(2.0 * f64::from(self.truncation)));
         let blocks = columns * (per_frame * frames as f64).min(fused);
@@ -521,4 +528,38 @@ fn integrate_block(
         }
     }
     (readers, weights)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// Bytes one frame of a wall facing the camera at `z` metres allocates.
+    fn wall_bytes(config: TsdfConfig, k: &Intrinsics, z: f32) -> usize {
+        let mut volume = TsdfVolume::new(config).unwrap();
+        let mut depth = DepthImage::new(k.width, k.height);
+        depth.data.fill(z);
+        volume.integrate(&depth, None, k, &Pose::IDENTITY).unwrap();
+        volume.voxel_bytes()
+    }
+
+    #[test]
+    fn the_estimate_bounds_a_frame_and_grows_as_voxels_shrink() {
+        let k = Intrinsics::from_vertical_fov(160, 120, 60.0);
+        for voxel in [0.002, 0.01, 0.05] {
+            let config = TsdfConfig::new(voxel);
+            // A wall at the far limit is the frame that allocates most.
+            let actual = wall_bytes(config, &k, 4.0) as f64;
+            let estimate = config.estimate_bytes(&k, 4.0, 1);
+            // An upper bound for one frame, and within 4× of it: the
+            // bound counts every block the steepest ray's band crosses.
+            assert!(actual <= estimate, "{voxel}: {actual} > {estimate}");
+            assert!(estimate <= 4.0 * actual, "{voxel}: {estimate} ≫ {actual}");
+        }
+        let a = TsdfConfig::new(0.01).estimate_bytes(&k, 4.0, 100);
+        let b = TsdfConfig::new(0.001).estimate_bytes(&k, 4.0, 100);
+        // Ten times finer voxels: up to 100× the block columns (fewer once
+        // each pixel has its own) and more blocks along each ray.
+        assert!(b > 10.0 * a, "{b} vs {a}");
+    }
 }
