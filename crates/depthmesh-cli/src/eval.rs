@@ -2,7 +2,7 @@
 
 use anyhow::{bail, Result};
 use clap::{Args, Subcommand};
-use depthmesh::dataset::{Dataset, DatasetOptions};
+use depthmesh::dataset::{Dataset, DatasetOptions, FrameRange};
 use depthmesh::eval::trajectory::trajectory_error;
 use depthmesh::trajectory::read_tum;
 use depthmesh::Pose;
@@ -24,6 +24,11 @@ pub struct TrajectoryArgs {
     /// Reference: a TUM trajectory file, or a dataset folder (7-Scenes
     /// frames folder or TUM RGB-D folder) whose poses serve as reference.
     pub reference: PathBuf,
+    /// With a dataset folder as reference: only these frames' poses, `A..B`
+    /// (half-open, as `reconstruct --frames`), so a run over part of a
+    /// sequence is judged against that part.
+    #[arg(long)]
+    pub frames: Option<FrameRange>,
     /// Poses further apart in time than this (seconds) are not matched.
     #[arg(long, default_value_t = 0.02, allow_negative_numbers = true)]
     pub max_dt: f64,
@@ -59,7 +64,7 @@ fn trajectory(args: &TrajectoryArgs) -> Result<()> {
         );
     }
     let estimate = read_tum(&args.estimate)?;
-    let reference = read_reference(&args.reference)?;
+    let reference = read_reference(&args.reference, args.frames)?;
     let e = trajectory_error(&estimate, &reference, args.max_dt)?;
     let coverage = e.matched as f64 / reference.len() as f64;
     if args.json {
@@ -110,10 +115,14 @@ fn trajectory(args: &TrajectoryArgs) -> Result<()> {
     Ok(())
 }
 
-/// A TUM file, or the poses of a dataset folder.
-fn read_reference(path: &Path) -> Result<Vec<(f64, Pose)>> {
+/// A TUM file, or the poses of a dataset folder (of `frames` only, if given).
+fn read_reference(path: &Path, frames: Option<FrameRange>) -> Result<Vec<(f64, Pose)>> {
     if path.is_dir() {
-        let dataset = Dataset::open(path, &DatasetOptions::default())?;
+        let options = DatasetOptions {
+            frames,
+            ..DatasetOptions::default()
+        };
+        let dataset = Dataset::open(path, &options)?;
         let poses = dataset.trajectory()?;
         if poses.is_empty() {
             bail!(
@@ -122,6 +131,11 @@ fn read_reference(path: &Path) -> Result<Vec<(f64, Pose)>> {
             );
         }
         Ok(poses)
+    } else if frames.is_some() {
+        bail!(
+            "--frames selects frames of a dataset folder; {} is a trajectory file",
+            path.display()
+        );
     } else {
         Ok(read_tum(path)?)
     }

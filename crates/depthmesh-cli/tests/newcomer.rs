@@ -62,6 +62,17 @@ fn eval_of_an_estimate_that_lost_most_frames_fails_and_says_how_few_it_covers() 
     let e: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
     assert_eq!(e["reference_poses"], 10);
     assert_eq!(e["coverage"], 0.2);
+    // Frames of a trajectory file cannot be chosen (only of a dataset
+    // folder, to judge a run over part of a sequence against that part).
+    let out = depthmesh(&[
+        "eval",
+        "trajectory",
+        arg(&est),
+        arg(&reference),
+        "--frames",
+        "0..2",
+    ]);
+    assert_fails_with(&out, &["--frames", "ref.txt"]);
     std::fs::remove_dir_all(dir).unwrap();
 }
 
@@ -299,7 +310,7 @@ fn millimetres_typed_as_metres_are_refused_with_the_estimate() {
     // 0.1 mm voxels: each of the two 160×120 frames puts every pixel's
     // truncation band into blocks of its own: estimated 300 MiB for the
     // two, measured 103 MiB (the frames share some blocks); a
-    // 640×480 frame alone takes about 1.2 GiB. The budget is given, so
+    // 640×480 frame alone is estimated at 2.3 GiB. The budget is given, so
     // the machine does not matter.
     let run = reconstruct(&dir, &out, &["--voxel", "0.0001", "--max-memory", "64M"]);
     assert_fails_with(&run, &["--voxel", "0.1 mm", "300.0 MiB", "--max-memory"]);

@@ -192,13 +192,25 @@ pub fn simulated_frames_folder(dir: &Path, frames: u32) {
 /// or a dataset folder), which must succeed.
 #[allow(dead_code)] // not every test file needs it
 pub fn eval_json(estimate: &std::path::Path, reference: &std::path::Path) -> serde_json::Value {
-    let eval = depthmesh(&[
+    eval_json_with(estimate, reference, &[])
+}
+
+/// [`eval_json`] with `extra` flags.
+#[allow(dead_code)] // not every test file needs it
+pub fn eval_json_with(
+    estimate: &std::path::Path,
+    reference: &std::path::Path,
+    extra: &[&str],
+) -> serde_json::Value {
+    let mut args = vec![
         "eval",
         "trajectory",
         estimate.to_str().unwrap(),
         reference.to_str().unwrap(),
         "--json",
-    ]);
+    ];
+    args.extend_from_slice(extra);
+    let eval = depthmesh(&args);
     ok(&eval);
     serde_json::from_slice(&eval.stdout).unwrap()
 }
