@@ -103,6 +103,7 @@ pub fn run(args: &DemoArgs, quiet: bool) -> Result<()> {
             threshold: None,
             voxel: 0.01,
             keep_removed: false,
+            no_settle: false,
             track: false,
             planes: PlanesArgs::default(),
             dashboard: true,

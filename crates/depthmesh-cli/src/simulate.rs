@@ -79,6 +79,10 @@ pub struct SimulateArgs {
     /// Keep triangles the sensor sees through (the thesis's behaviour) instead of removing them.
     #[arg(long)]
     pub keep_removed: bool,
+    /// Keep M as the depth-image mesher made it: no simplification of
+    /// settled surface (mabdi).
+    #[arg(long)]
+    pub no_settle: bool,
     /// Voxel size in metres (tsdf; truncation 4 voxels).
     #[arg(long, default_value_t = 0.01, allow_negative_numbers = true)]
     pub voxel: f32,
@@ -289,6 +293,9 @@ fn map_config(args: &SimulateArgs, sensor: &SimulatedSensor) -> MapConfig {
     }
     if args.keep_removed {
         mabdi.removal = None;
+    }
+    if args.no_settle {
+        mabdi.settling = None;
     }
     match args.map {
         MapKind::Mabdi => MapConfig::Mabdi(mabdi),

@@ -571,3 +571,35 @@ fn the_study_writes_its_plots_and_table() {
     assert_fails_with(&bad, &["--voxels"]);
     std::fs::remove_dir_all(out).unwrap();
 }
+
+#[test]
+fn bench_codec_reports_every_codec_lossless() {
+    let dir = scratch("bench-codec");
+    simulated_frames_folder(&dir, 3);
+    let output = depthmesh(&[
+        "bench",
+        "codec",
+        dir.to_str().unwrap(),
+        "--frames",
+        "0..3",
+        "--repeats",
+        "1",
+    ]);
+    ok(&output);
+    let report: serde_json::Value = serde_json::from_slice(&output.stdout).unwrap();
+    assert_eq!(report["default"], "levels");
+    let codecs = report["codecs"].as_array().unwrap();
+    let names: Vec<&str> = codecs.iter().map(|c| c["name"].as_str().unwrap()).collect();
+    assert_eq!(names, ["raw", "png", "rvl", "levels"]);
+    for codec in codecs {
+        let bytes = codec["bytes_per_frame"].as_f64().unwrap();
+        let ratio = codec["ratio"].as_f64().unwrap();
+        // raw bytes / compressed bytes, 160×120 16-bit frames.
+        assert!(
+            (ratio * bytes - 160.0 * 120.0 * 2.0).abs() < 1e-6,
+            "{codec}"
+        );
+        assert!(codec["encode_ms"].as_f64().unwrap() >= 0.0, "{codec}");
+    }
+    let _ = std::fs::remove_dir_all(&dir);
+}

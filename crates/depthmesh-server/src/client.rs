@@ -167,25 +167,12 @@ pub async fn stream(
         if source_done && in_flight == 0 {
             break;
         }
+        // A frame is due at `next_send`; until then the loop only reads.
+        let due = period.is_none() || Instant::now() >= next_send;
         tokio::select! {
-            frame = frames_rx.recv(), if may_send => {
-                let Some(frame) = frame else {
-                    source_done = true;
-                    continue;
-                };
-                let (index, bytes, depth) = frame?;
-                if let Some(period) = period {
-                    tokio::time::sleep_until(next_send.into()).await;
-                    next_send = next_send.max(Instant::now() - period) + period;
-                }
-                p.upload_bytes += bytes.len() as u64;
-                depth_bytes += depth as u64;
-                sent_at.insert(index, Instant::now());
-                ws.send(Message::binary(bytes))
-                    .await
-                    .map_err(|e| format!("frame {index}: cannot send: {e}"))?;
-                p.sent += 1;
-            }
+            // Replies first, so verdicts are read as they come and latency
+            // is the server's, not this loop's.
+            biased;
             incoming = next_message(&mut ws, options.reply_timeout) => {
                 let (message, bytes) = incoming.map(|m| { let n = m.len(); (m, n) })?;
                 p.download_bytes += bytes as u64;
@@ -210,6 +197,25 @@ pub async fn stream(
                     _ => return Err("unexpected message from the server".into()),
                 }
             }
+            frame = frames_rx.recv(), if may_send && due => {
+                let Some(frame) = frame else {
+                    source_done = true;
+                    continue;
+                };
+                let (index, bytes, depth) = frame?;
+                if let Some(period) = period {
+                    // Late frames do not make the next ones early.
+                    next_send = next_send.max(Instant::now() - period) + period;
+                }
+                p.upload_bytes += bytes.len() as u64;
+                depth_bytes += depth as u64;
+                sent_at.insert(index, Instant::now());
+                ws.send(Message::binary(bytes))
+                    .await
+                    .map_err(|e| format!("frame {index}: cannot send: {e}"))?;
+                p.sent += 1;
+            }
+            () = tokio::time::sleep_until(next_send.into()), if may_send && !due => {}
         }
         p.seconds = start.elapsed().as_secs_f64();
         on_progress(&p);

@@ -465,6 +465,36 @@ impl Rasterizer {
         any
     }
 
+    /// After a render of `triangles`, calls `visit` on every triangle of the
+    /// chunks that render had in view, with its projected corners (see
+    /// [`Rasterizer::screen_points`]) and its byte of `state`: a second
+    /// per-triangle pass for evidence that needs the finished image.
+    /// Returns whether any visit returned true; visits nothing if
+    /// `triangles` is not what was rendered last.
+    pub fn visit_in_view<F>(&self, triangles: &[[u32; 3]], state: &mut [u8], visit: F) -> bool
+    where
+        F: Fn(&mut u8, &[[f32; 3]; 3]) -> bool + Sync,
+    {
+        let chunks = triangles.len().div_ceil(CHUNK_TRIANGLES);
+        if self.chunk_visible.len() != chunks || state.len() != triangles.len() {
+            return false;
+        }
+        let screen = &self.screen_points;
+        state
+            .par_chunks_mut(CHUNK_TRIANGLES)
+            .zip(triangles.par_chunks(CHUNK_TRIANGLES))
+            .zip(self.chunk_visible.par_iter())
+            .filter(|(_, &visible)| visible)
+            .map(|((state, tris), _)| {
+                let mut any = false;
+                for (s, t) in state.iter_mut().zip(tris) {
+                    any |= visit(s, &t.map(|v| screen[v as usize]));
+                }
+                any
+            })
+            .reduce(|| false, |a, b| a || b)
+    }
+
     /// Makes the first `count` layers hold `pixels` zero keys. The merge
     /// leaves layers cleared, so this normally only checks sizes.
     fn prepare_layers(&mut self, count: usize, pixels: usize) {
@@ -508,24 +538,41 @@ pub struct ChunkBounds {
 }
 
 impl ChunkBounds {
-    /// Accounts for triangles appended since the last call (only those are read).
+    /// Accounts for triangles appended since the last call (only those, and
+    /// the rest of the last chunk, are read; chunks in parallel).
     pub fn extend(&mut self, positions: &[Vec3], triangles: &[[u32; 3]]) {
         if self.counted > triangles.len() {
             self.clear();
         }
-        for (t, tri) in triangles.iter().enumerate().skip(self.counted) {
-            let chunk = t / CHUNK_TRIANGLES;
-            if chunk == self.boxes.len() {
-                self.boxes.push(Aabb::EMPTY);
-                self.vertex_ranges.push((u32::MAX, 0));
-            }
-            for &v in tri {
-                self.boxes[chunk].include(positions[v as usize]);
-                let r = &mut self.vertex_ranges[chunk];
-                *r = (r.0.min(v), r.1.max(v));
-            }
+        let from = self.counted / CHUNK_TRIANGLES;
+        self.boxes.truncate(from);
+        self.vertex_ranges.truncate(from);
+        let fresh: Vec<(Aabb, (u32, u32))> = triangles[from * CHUNK_TRIANGLES..]
+            .par_chunks(CHUNK_TRIANGLES)
+            .map(|tris| {
+                let mut b = Aabb::EMPTY;
+                let mut range = (u32::MAX, 0);
+                for &v in tris.iter().flatten() {
+                    b.include(positions[v as usize]);
+                    range = (range.0.min(v), range.1.max(v));
+                }
+                (b, range)
+            })
+            .collect();
+        for (b, range) in fresh {
+            self.boxes.push(b);
+            self.vertex_ranges.push(range);
         }
         self.counted = triangles.len();
+    }
+
+    /// Forgets the boxes of the chunks from the one holding triangle `first`
+    /// on, for when the triangles from `first` on were replaced.
+    pub fn truncate(&mut self, first: usize) {
+        let chunk = (first / CHUNK_TRIANGLES).min(self.boxes.len());
+        self.boxes.truncate(chunk);
+        self.vertex_ranges.truncate(chunk);
+        self.counted = self.counted.min(chunk * CHUNK_TRIANGLES);
     }
 
     /// Forgets all boxes, for when triangles were removed or reordered.

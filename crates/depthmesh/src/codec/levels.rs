@@ -23,15 +23,16 @@
 //!   its value), all Elias gamma codes;
 //! - 8 frequency tables (one per context, see [`rans`](super::rans));
 //! - per band of 64 rows: the rANS bytes, then the raw bits, each after its
-//!   `u32` length. Bands are predicted independently (a band's
-//!   first row from its left neighbours only), so they are coded in
-//!   parallel, and the stream does not depend on the number of threads.
+//!   `u32` length. Bands are predicted independently (a band's first row
+//!   from its left neighbours only), so a decoder could take them in
+//!   parallel; this one codes them in turn, as a 640×480 frame takes about
+//!   2 ms on one core and waking rayon's threads from outside the pool cost
+//!   more than that on a busy 2-core machine (measured with `bench codec`).
 
 use super::bits::{BitReader, BitWriter};
-use super::rans::{encode_table, DecodeTable, Frequencies, RansDecoder, RansEncoder};
+use super::rans::{encode_all, encode_table, DecodeTable, Frequencies, RansDecoder};
 use super::RawDepth;
 use crate::error::{Error, Result};
-use rayon::prelude::*;
 
 const NAME: &str = "levels";
 /// Contexts: bit lengths 0–6 of the local activity, and 7 for all larger.
@@ -42,7 +43,7 @@ const DIRECT: u32 = 8;
 const SYMBOLS: usize = DIRECT as usize + 13;
 /// Rows per independently coded band: large enough that a band's first
 /// row (predicted less well) and its 8 bytes of lengths are noise, small
-/// enough that a 480-row frame splits over 8 threads.
+/// enough that a 480-row frame could be decoded by 8 threads.
 const BAND_ROWS: usize = 64;
 
 /// Symbol counts per code (`context * SYMBOLS + symbol`).
@@ -54,7 +55,6 @@ const CODES: usize = CONTEXTS * SYMBOLS;
 pub struct Scratch {
     index_of: Vec<u16>,
     levels: Vec<u16>,
-    indices: Vec<u16>,
     /// Per pixel `context * SYMBOLS + symbol`, which fits a byte.
     codes: Vec<u8>,
     bands: Vec<Band>,
@@ -63,6 +63,9 @@ pub struct Scratch {
 /// One band's streams and symbol counts while encoding.
 #[derive(Debug)]
 struct Band {
+    /// Indices of the row above and of this row.
+    up: Vec<u16>,
+    row: Vec<u16>,
     bits: BitWriter,
     rans: Vec<u8>,
     counts: Counts,
@@ -71,6 +74,8 @@ struct Band {
 impl Default for Band {
     fn default() -> Self {
         Band {
+            up: Vec::new(),
+            row: Vec::new(),
             bits: BitWriter::default(),
             rans: Vec::new(),
             counts: [0; CODES],
@@ -82,6 +87,7 @@ impl Default for Band {
 pub(super) fn encode(depth: &RawDepth, scratch: &mut Scratch, out: &mut Vec<u8>) {
     let width = depth.width() as usize;
     build_levels(depth.data(), scratch);
+    let data = depth.data();
     write_levels(&scratch.levels, out);
 
     let pixels = depth.data().len();
@@ -91,16 +97,16 @@ pub(super) fn encode(depth: &RawDepth, scratch: &mut Scratch, out: &mut Vec<u8>)
         .bands
         .resize_with(pixels.div_ceil(band_pixels), Band::default);
     let Scratch {
-        indices,
+        index_of,
+        levels,
         codes,
         bands,
-        ..
     } = scratch;
-    indices
-        .par_chunks(band_pixels)
-        .zip(codes.par_chunks_mut(band_pixels))
-        .zip(bands.par_iter_mut())
-        .for_each(|((indices, codes), band)| model_band(indices, width, codes, band));
+    data.chunks(band_pixels)
+        .zip(codes.chunks_mut(band_pixels))
+        .zip(bands.iter_mut())
+        .for_each(|((data, codes), band)| model_band(data, index_of, width, codes, band));
+    clear_levels(index_of, levels);
 
     let mut counts = [0u32; CODES];
     for band in bands.iter() {
@@ -116,15 +122,10 @@ pub(super) fn encode(depth: &RawDepth, scratch: &mut Scratch, out: &mut Vec<u8>)
         table.extend(encode_table(&freq));
     }
     codes
-        .par_chunks(band_pixels)
-        .zip(bands.par_iter_mut())
+        .chunks(band_pixels)
+        .zip(bands.iter_mut())
         .for_each(|(codes, band)| {
-            let mut encoder = RansEncoder::new(&mut band.rans);
-            encoder.reserve(codes.len());
-            for (i, &code) in codes.iter().enumerate().rev() {
-                encoder.put(i, &table[usize::from(code)]);
-            }
-            encoder.finish();
+            encode_all(codes, &table, &mut band.rans);
         });
     for band in bands.iter_mut() {
         let bits = band.bits.finish();
@@ -165,38 +166,45 @@ pub(super) fn decode(
         ));
     }
     let levels = &scratch.levels;
-    values
-        .par_chunks_mut(band_pixels)
-        .zip(streams)
-        .try_for_each(|(band, (rans, bits))| {
-            decode_band(band, width, &tables, levels.len(), rans, bits)?;
-            for value in band.iter_mut() {
-                *value = levels[usize::from(*value)];
-            }
-            Ok(())
-        })
+    for (band, (rans, bits)) in values.chunks_mut(band_pixels).zip(streams) {
+        decode_band(band, width, &tables, levels.len(), rans, bits)?;
+        for value in band.iter_mut() {
+            *value = levels[usize::from(*value)];
+        }
+    }
+    Ok(())
 }
 
-/// The sorted distinct values of `data` into `scratch.levels`, and each
-/// pixel's index among them into `scratch.indices`.
+/// The sorted distinct values of `data` into `scratch.levels`, and the
+/// index of each among them into `scratch.index_of`, whose other entries
+/// are zero and which [`clear_levels`] leaves all zero again.
 fn build_levels(data: &[u16], scratch: &mut Scratch) {
     let index_of = &mut scratch.index_of;
-    index_of.clear();
     index_of.resize(1 << 16, 0);
     for &v in data {
         index_of[usize::from(v)] = 1;
     }
     scratch.levels.clear();
-    for (value, index) in index_of.iter_mut().enumerate() {
-        if *index != 0 {
-            *index = scratch.levels.len() as u16;
-            scratch.levels.push(value as u16);
+    // Blocks of 64 marks tested at once (the OR vectorises), as a frame
+    // holds a few hundred of the 65536 values.
+    for (block, marks) in index_of.chunks_exact_mut(64).enumerate() {
+        if marks.iter().fold(0, |any, &m| any | m) == 0 {
+            continue;
+        }
+        for (offset, mark) in marks.iter_mut().enumerate() {
+            if *mark != 0 {
+                *mark = scratch.levels.len() as u16;
+                scratch.levels.push((block * 64 + offset) as u16);
+            }
         }
     }
-    scratch.indices.clear();
-    scratch
-        .indices
-        .extend(data.iter().map(|&v| index_of[usize::from(v)]));
+}
+
+/// Zeroes the entries [`build_levels`] set, ready for the next frame.
+fn clear_levels(index_of: &mut [u16], levels: &[u16]) {
+    for &level in levels {
+        index_of[usize::from(level)] = 0;
+    }
 }
 
 fn write_levels(levels: &[u16], out: &mut Vec<u8>) {
@@ -309,32 +317,45 @@ fn symbol_of(zigzag: u32) -> (u8, u32, u32) {
     )
 }
 
-/// Codes and raw bits of one band of indices.
-fn model_band(indices: &[u16], width: usize, codes: &mut [u8], band: &mut Band) {
+/// Codes and raw bits of one band of values, mapped to indices a row at a time.
+fn model_band(data: &[u16], index_of: &[u16], width: usize, codes: &mut [u8], band: &mut Band) {
     band.bits.clear();
-    // Four sets of counts, taken in turn, so that incrementing the same
-    // counter pixel after pixel does not wait on its own store each time.
-    let mut counts = [[0u32; CODES]; 4];
-    let rows = indices
-        .chunks_exact(width)
-        .zip(codes.chunks_exact_mut(width));
-    for (y, (row, codes)) in rows.enumerate() {
-        let up = y.checked_sub(1).map(|u| &indices[u * width..y * width]);
-        let walked = walk_row(up, width, |x, prediction, context| {
-            let index = row[x];
-            let residual = index.wrapping_sub(prediction) as i16;
-            let zigzag = ((residual << 1) ^ (residual >> 15)) as u16;
-            let (symbol, extra, extra_bits) = symbol_of(u32::from(zigzag));
-            if extra_bits > 0 {
-                band.bits.put(extra, extra_bits);
-            }
-            let code = (context * SYMBOLS) as u8 + symbol;
-            codes[x] = code;
-            counts[x & 3][usize::from(code)] += 1;
-            Ok::<_, std::convert::Infallible>(index)
-        });
+    let (mut up, mut row) = (std::mem::take(&mut band.up), std::mem::take(&mut band.row));
+    let rows = data.chunks_exact(width).zip(codes.chunks_exact_mut(width));
+    for (y, (values, codes)) in rows.enumerate() {
+        row.clear();
+        row.extend(values.iter().map(|&v| index_of[usize::from(v)]));
+        let walked = walk_row(
+            (y > 0).then_some(&up[..]),
+            width,
+            |x, prediction, context| {
+                let index = row[x];
+                let residual = index.wrapping_sub(prediction) as i16;
+                let zigzag = ((residual << 1) ^ (residual >> 15)) as u16;
+                let (symbol, extra, extra_bits) = symbol_of(u32::from(zigzag));
+                if extra_bits > 0 {
+                    band.bits.put(extra, extra_bits);
+                }
+                codes[x] = (context * SYMBOLS) as u8 + symbol;
+                Ok::<_, std::convert::Infallible>(index)
+            },
+        );
         let Ok(()) = walked;
+        std::mem::swap(&mut up, &mut row);
     }
+    // Counted after, four bytes at a time into four tables, so that
+    // counting the same code again does not wait on its own store.
+    let mut counts = [[0u32; CODES]; 4];
+    let mut quads = codes.chunks_exact(4);
+    for quad in &mut quads {
+        for (set, &code) in counts.iter_mut().zip(quad) {
+            set[usize::from(code)] += 1;
+        }
+    }
+    for &code in quads.remainder() {
+        counts[0][usize::from(code)] += 1;
+    }
+    (band.up, band.row) = (up, row);
     band.counts = [0; CODES];
     for set in &counts {
         for (total, count) in band.counts.iter_mut().zip(set) {

@@ -210,6 +210,8 @@ impl Header {
         }
     }
 
+    /// The magic of a codec's stream. RVL streams begin with ROS's own
+    /// header instead, so [`Header`] never reads or writes theirs.
     fn magic(codec: Codec) -> &'static [u8; 4] {
         match codec {
             Codec::Raw => b"DMR1",

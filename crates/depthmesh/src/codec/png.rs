@@ -56,8 +56,28 @@ pub(super) fn decode(payload: &[u8], width: u32, height: u32, values: &mut [u16]
     }
     let mut bytes = vec![0u8; values.len() * 2];
     reader.next_frame(&mut bytes).map_err(corrupt)?;
+    // Through the end chunk: a PNG cut after its pixel data is still truncated.
+    reader.finish().map_err(corrupt)?;
+    let end = end_of_png(payload);
+    if end != Some(payload.len()) {
+        return Err(Error::codec(NAME, "bytes after the PNG's end chunk"));
+    }
     for (value, be) in values.iter_mut().zip(bytes.chunks_exact(2)) {
         *value = u16::from_be_bytes([be[0], be[1]]);
     }
     Ok(())
+}
+
+/// Where the PNG in `bytes` ends: after its signature, the chunks up to and
+/// including `IEND` (each a length, a type, the data and a CRC).
+fn end_of_png(bytes: &[u8]) -> Option<usize> {
+    let mut at = 8;
+    loop {
+        let head = bytes.get(at..at + 8)?;
+        let length = u32::from_be_bytes([head[0], head[1], head[2], head[3]]) as usize;
+        at = at.checked_add(12 + length)?;
+        if &head[4..8] == b"IEND" {
+            return Some(at);
+        }
+    }
 }

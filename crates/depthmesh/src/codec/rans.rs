@@ -118,52 +118,40 @@ pub(super) fn encode_table<const N: usize>(freq: &Frequencies<N>) -> [EncodeSymb
     symbols
 }
 
-/// Encodes symbols last to first; the bytes come out reversed until
-/// [`RansEncoder::finish`]. Symbols alternate between two states (by the
-/// parity of their position), so consecutive symbols do not wait on each
-/// other's multiplications; both share one byte stream.
-#[derive(Debug)]
-pub(super) struct RansEncoder<'a> {
-    states: [u32; 2],
-    reversed: &'a mut Vec<u8>,
+/// Encodes `symbols` with `table` into `out` (replacing its content), in
+/// the order [`RansDecoder`] reads them. Symbols at even and odd positions
+/// go through two states, so consecutive symbols do not wait on each
+/// other's multiplications; both share one byte stream. rANS encodes last
+/// to first, so the bytes are written reversed, then turned round.
+pub(super) fn encode_all(symbols: &[u8], table: &[EncodeSymbol], out: &mut Vec<u8>) {
+    out.clear();
+    out.reserve(symbols.len() / 2 + 16);
+    let (mut even, mut odd) = (STATE_LOW, STATE_LOW);
+    let mut i = symbols.len();
+    if i % 2 == 1 {
+        i -= 1;
+        even = put(even, &table[usize::from(symbols[i])], out);
+    }
+    while i > 0 {
+        i -= 2;
+        odd = put(odd, &table[usize::from(symbols[i + 1])], out);
+        even = put(even, &table[usize::from(symbols[i])], out);
+    }
+    out.extend_from_slice(&odd.to_le_bytes());
+    out.extend_from_slice(&even.to_le_bytes());
+    out.reverse();
 }
 
-impl<'a> RansEncoder<'a> {
-    /// An encoder writing into `out`, which it empties.
-    pub fn new(out: &'a mut Vec<u8>) -> Self {
-        out.clear();
-        RansEncoder {
-            states: [STATE_LOW; 2],
-            reversed: out,
-        }
+/// Encodes one symbol (which must have a frequency) onto state `x`,
+/// pushing the bytes it renormalises out, and returns the new state.
+#[inline(always)]
+fn put(mut x: u32, symbol: &EncodeSymbol, reversed: &mut Vec<u8>) -> u32 {
+    while x >= symbol.limit {
+        reversed.push(x as u8);
+        x >>= 8;
     }
-
-    /// Makes room for the bytes of about `symbols` symbols.
-    pub fn reserve(&mut self, symbols: usize) {
-        self.reversed.reserve(symbols / 2 + 16);
-    }
-
-    /// Encodes the symbol at position `i` (which must have a frequency).
-    #[inline]
-    pub fn put(&mut self, i: usize, symbol: &EncodeSymbol) {
-        let state = &mut self.states[i & 1];
-        let mut x = *state;
-        while x >= symbol.limit {
-            self.reversed.push(x as u8);
-            x >>= 8;
-        }
-        let q = ((u64::from(x) * u64::from(symbol.reciprocal)) >> 32) as u32 >> symbol.shift;
-        *state = x + symbol.bias + q * symbol.complement;
-    }
-
-    /// Flushes the states and puts the bytes in decoding order.
-    pub fn finish(self) {
-        self.reversed
-            .extend_from_slice(&self.states[1].to_le_bytes());
-        self.reversed
-            .extend_from_slice(&self.states[0].to_le_bytes());
-        self.reversed.reverse();
-    }
+    let q = ((u64::from(x) * u64::from(symbol.reciprocal)) >> 32) as u32 >> symbol.shift;
+    x + symbol.bias + q * symbol.complement
 }
 
 /// The decoder's view of a [`Frequencies`] table: the symbol of every slot.
@@ -192,7 +180,7 @@ impl DecodeTable {
     }
 }
 
-/// Decodes what [`RansEncoder`] wrote, first symbol first.
+/// Decodes what [`encode_all`] wrote, first symbol first.
 pub(super) struct RansDecoder<'a> {
     states: [u32; 2],
     bytes: &'a [u8],
@@ -296,13 +284,8 @@ mod tests {
             let (read, rest) = Frequencies::<21>::read(&table_bytes, "test").unwrap();
             assert!(rest.is_empty() && read == freq);
 
-            let encode = encode_table(&freq);
             let mut bytes = Vec::new();
-            let mut encoder = RansEncoder::new(&mut bytes);
-            for (i, &s) in symbols.iter().enumerate().rev() {
-                encoder.put(i, &encode[usize::from(s)]);
-            }
-            encoder.finish();
+            encode_all(&symbols, &encode_table(&freq), &mut bytes);
             let table = DecodeTable::new(&freq);
             let mut decoder = RansDecoder::new(&bytes, "test").unwrap();
             for (i, &s) in symbols.iter().enumerate() {

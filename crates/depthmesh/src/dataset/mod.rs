@@ -632,6 +632,28 @@ mod tests {
     }
 
     #[test]
+    fn raw_depth_is_the_stored_values_and_converts_to_the_frames_depth() {
+        let dir = frames_folder("dataset-raw", 2);
+        let options = DatasetOptions {
+            depth_max: 1.05,
+            ..DatasetOptions::default()
+        };
+        let dataset = Dataset::open(dir.path(), &options).unwrap();
+        let mut raw = RawDepth::default();
+        for i in 0..2 {
+            dataset.raw_depth(i, &mut raw).unwrap();
+            let stored = 1000 + 100 * i as u16;
+            assert_eq!(raw.data()[..3], [0, 65535, stored]);
+            assert_eq!(raw.units_per_metre(), 1000.0);
+            let mut depth = DepthImage::default();
+            raw.to_metres(&mut depth);
+            depth.clamp_range(options.depth_min, options.depth_max);
+            assert_eq!(depth, dataset.frame(i).unwrap().depth);
+        }
+        assert!(dataset.raw_depth(2, &mut raw).is_err());
+    }
+
+    #[test]
     fn corrupt_frame_fails_or_is_skipped() {
         let dir = frames_folder("dataset-corrupt", 4);
         let corrupt = dir.path().join("frame-000002.depth.png");

@@ -56,6 +56,20 @@ pub fn fraction_within(mesh: &Mesh, reference: &Mesh, tolerance: f32, spacing: f
     Some(near as f64 / points.len() as f64)
 }
 
+/// Triangles of `mesh` whose centroid lies within reach of `object` (its
+/// index's radius) and out of reach of `others`: the triangles on one object
+/// of a scene, leaving out those near a contact, whose owner is unclear.
+pub fn triangles_on(mesh: &Mesh, object: &MeshDistance, others: &MeshDistance) -> usize {
+    (0..mesh.triangle_count())
+        .into_par_iter()
+        .filter(|&t| {
+            let [a, b, c] = mesh.corners(t);
+            let p = (a + b + c) / 3.0;
+            object.distance(p).is_some() && others.distance(p).is_none()
+        })
+        .count()
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;

@@ -22,8 +22,14 @@
 //! contradiction needs a 2.5σ error at all nine pixels in two frames, so noise
 //! does not erode unchanged surfaces. What noise does remove is noise:
 //! triangles made from a noisy spike that later frames see through.
+//!
+//! Pixels with no return give no free-space evidence here; where a surface
+//! is seen through in part, its missing returns count too
+//! ([`absence`](mod@super::absence)), so an object removed in front of open
+//! space leaves M as well.
 
 use crate::image::DepthImage;
+use crate::mabdi::absence::{centroid_pixel, Absence, AbsenceMap, MissingReturns};
 use crate::mabdi::classify::Threshold;
 use rayon::prelude::*;
 
@@ -32,12 +38,19 @@ use rayon::prelude::*;
 pub struct Carver {
     /// Contradictions without a confirmation in between, per triangle.
     pub votes: Vec<u8>,
-    /// Per pixel: the depth and its neighbourhood minimum (0 = not usable),
-    /// side by side so a lookup touches one cache line.
+    /// Per pixel: the depth and its 3×3 neighbourhood minimum (0 = not all
+    /// nine valid, [`NONE_OF_NINE`] = none valid), side by side so a lookup
+    /// touches one cache line.
     depths: Vec<[f32; 2]>,
-    /// Scratch: per pixel, the minimum of it and its row neighbours.
-    row_minima: Vec<f32>,
+    /// Scratch: per pixel, the minimum and maximum of it and its row neighbours.
+    row_extremes: Vec<[f32; 2]>,
+    /// The regions of missing returns (see [`absence`](mod@super::absence)).
+    absence: AbsenceMap,
 }
+
+/// The neighbourhood "minimum" of a pixel none of whose nine pixels has a
+/// measurement.
+pub(crate) const NONE_OF_NINE: f32 = -1.0;
 
 /// The evidence one depth image gives about triangles, ready to be asked
 /// triangle by triangle (from the render of E, which projects them anyway).
@@ -65,20 +78,22 @@ impl Carver {
         self.depths.clear();
         self.depths.resize(w * h, [0.0; 2]);
         if w >= 3 && h >= 3 {
-            // The 3×3 minimum is separable: minima of three along rows, then
-            // of three of those down columns. An invalid depth counts as 0,
-            // so a minimum is positive exactly when all nine are valid.
+            // The 3×3 minimum and maximum are separable: along rows, then
+            // down columns. An invalid depth counts as 0, so a minimum is
+            // positive exactly when all nine are valid, and a maximum is 0
+            // exactly when none is.
             let valid = |d: f32| if d > 0.0 { d } else { 0.0 };
-            self.row_minima.resize(w * h, 0.0);
-            self.row_minima
+            self.row_extremes.resize(w * h, [0.0; 2]);
+            self.row_extremes
                 .par_chunks_mut(w)
                 .zip(depth.data.par_chunks(w))
                 .for_each(|(out, row)| {
                     for (o, d) in out[1..w - 1].iter_mut().zip(row.windows(3)) {
-                        *o = valid(d[0]).min(valid(d[1])).min(valid(d[2]));
+                        let [a, b, c] = [d[0], d[1], d[2]].map(valid);
+                        *o = [a.min(b).min(c), a.max(b).max(c)];
                     }
                 });
-            let row_minima = &self.row_minima;
+            let rows = &self.row_extremes;
             self.depths
                 .par_chunks_mut(w)
                 .zip(depth.data.par_chunks(w))
@@ -90,11 +105,13 @@ impl Carver {
                     if r == 0 || r == h - 1 {
                         return;
                     }
-                    let above = &row_minima[(r - 1) * w..r * w];
-                    let here = &row_minima[r * w..(r + 1) * w];
-                    let below = &row_minima[(r + 1) * w..(r + 2) * w];
+                    let above = &rows[(r - 1) * w..r * w];
+                    let here = &rows[r * w..(r + 1) * w];
+                    let below = &rows[(r + 1) * w..(r + 2) * w];
                     for (c, o) in out.iter_mut().enumerate().take(w - 1).skip(1) {
-                        o[1] = above[c].min(here[c]).min(below[c]);
+                        let min = above[c][0].min(here[c][0]).min(below[c][0]);
+                        let max = above[c][1].max(here[c][1]).max(below[c][1]);
+                        o[1] = if max > 0.0 { min } else { NONE_OF_NINE };
                     }
                 });
         }
@@ -108,6 +125,29 @@ impl Carver {
         (&mut self.votes, evidence)
     }
 
+    /// After E is rendered: the per-triangle counters and, when some surface
+    /// of E is vanishing in front of open space, the evidence of its missing
+    /// returns (see [`absence`](mod@super::absence)). Call after [`Carver::prepare`]
+    /// for the same frame.
+    pub fn absence(
+        &mut self,
+        expected: &DepthImage,
+        threshold: Threshold,
+        continuity: Threshold,
+        params: &MissingReturns,
+        frames_to_remove: u8,
+    ) -> (&mut [u8], Option<Absence<'_>>) {
+        let absence = self.absence.find(
+            &self.depths,
+            expected,
+            threshold,
+            continuity,
+            params,
+            frames_to_remove,
+        );
+        (&mut self.votes, absence)
+    }
+
     /// Drops the counters of removed triangles, keeping those where `keep`.
     pub fn retain(&mut self, mut keep: impl FnMut(u8) -> bool) {
         self.votes.retain(|&v| keep(v));
@@ -119,24 +159,13 @@ impl Evidence<'_> {
     /// (pixel `u, v` and inverse depth) and says whether it is to be removed.
     #[inline]
     pub fn judge(&self, vote: &mut u8, s: &[[f32; 3]; 3]) -> bool {
-        if s[0][2] <= 0.0 || s[1][2] <= 0.0 || s[2][2] <= 0.0 {
-            return *vote >= self.frames_to_remove; // reaches behind the camera
-        }
-        let (w, h) = (self.width, self.height);
-        // The centroid's pixel and depth; triangles are small, so the mean of
-        // the projected corners stands for the projected centroid.
-        let u = (s[0][0] + s[1][0] + s[2][0]) * (1.0 / 3.0) + 0.5;
-        let v = (s[0][1] + s[1][1] + s[2][1]) * (1.0 / 3.0) + 0.5;
-        if !(u >= 0.0 && v >= 0.0 && u < w as f32 && v < h as f32) {
+        let Some((pixel, z)) = centroid_pixel(s, self.width, self.height) else {
             return *vote >= self.frames_to_remove;
-        }
-        // In range, so converting through `i32` floors like `as usize` would,
-        // for a fraction of the instructions of a saturating float-to-usize.
-        let [d, beyond] = self.depths[v as i32 as usize * w + u as i32 as usize];
+        };
+        let [d, beyond] = self.depths[pixel];
         if d <= 0.0 {
             return *vote >= self.frames_to_remove;
         }
-        let z = 3.0 / (s[0][2] + s[1][2] + s[2][2]);
         let tol = self.threshold.at(z);
         if beyond > 0.0 && z < beyond - tol {
             *vote = vote.saturating_add(1);

@@ -22,6 +22,7 @@
 //! rotation = [0.0, 0.0, 0.0]   # degrees about x, then y, then z (optional)
 //! scale = 1.0                  # number or [sx, sy, sz] (optional)
 //! floor = true                 # excluded from the helix bounds (optional)
+//! returns = false              # a black or shiny surface: hides what is behind it but gives no depth (default true)
 //! appear_at = 26               # optional: present from this iteration on (iterations are 1-based)
 //! remove_at = 30               # optional: absent from this iteration on
 //! dynamic = { appear_at = 26 } # optional: appear_at/remove_at that apply only in dynamic runs
@@ -90,6 +91,9 @@ pub struct SceneObject {
     pub mesh: Mesh,
     /// Floors are left out of the bounds the helix goes around.
     pub floor: bool,
+    /// Whether the sensor measures the surface; `false` makes a black or
+    /// shiny object that hides what is behind it but returns no depth.
+    pub returns: bool,
     /// First iteration (1-based) at which the object exists, if not from the start.
     pub appear_at: Option<u32>,
     /// First iteration at which the object no longer exists, if ever.
@@ -319,6 +323,11 @@ impl Lifetime {
     }
 }
 
+/// Surfaces return depth unless a scene says otherwise.
+fn returns_by_default() -> bool {
+    true
+}
+
 #[derive(Deserialize)]
 #[serde(deny_unknown_fields)]
 struct ObjectFile {
@@ -336,6 +345,8 @@ struct ObjectFile {
     scale: Option<Scale>,
     #[serde(default)]
     floor: bool,
+    #[serde(default = "returns_by_default")]
+    returns: bool,
     appear_at: Option<u32>,
     remove_at: Option<u32>,
     dynamic: Option<Lifetime>,
@@ -406,6 +417,7 @@ impl ObjectFile {
             name: name.to_owned(),
             mesh,
             floor: self.floor,
+            returns: self.returns,
             appear_at: life.appear_at,
             remove_at: life.remove_at,
         })
@@ -692,6 +704,7 @@ mod tests {
         assert_eq!(scene.objects.len(), 4);
         let ball = object(&scene, "ball");
         assert!(!ball.present_at(9) && ball.present_at(10) && !ball.present_at(20));
+        assert!(!object(&scene, "crate").returns && ball.returns);
         let post = object(&scene, "post");
         assert!(post.present_at(14) && !post.present_at(15));
         let b = post.mesh.bounds();

@@ -5,7 +5,7 @@ use crate::camera::{Intrinsics, Pose};
 use crate::error::{Error, Result};
 use crate::image::{DepthImage, Frame};
 use crate::mesh::Mesh;
-use crate::raster::{Rasterizer, RenderTarget};
+use crate::raster::{ChunkBounds, Geometry, Rasterizer, RenderTarget, NO_TRIANGLE};
 use crate::sim::noise::NoiseModel;
 use crate::sim::scene::Scene;
 
@@ -25,7 +25,34 @@ pub struct SimulatedSensor {
     rasterizer: Rasterizer,
     target: RenderTarget,
     /// The world mesh of the objects present, and which objects those are.
-    world: Option<(Vec<bool>, Mesh)>,
+    world: Option<(Vec<bool>, World)>,
+}
+
+/// The world as the sensor images it at one iteration.
+#[derive(Debug)]
+struct World {
+    mesh: Mesh,
+    /// Boxes of the mesh's triangle chunks, so a render skips what is out of view.
+    chunks: ChunkBounds,
+    /// Per triangle: whether its object returns no depth (`returns = false`).
+    silent: Vec<bool>,
+}
+
+impl World {
+    fn at(scene: &Scene, iteration: u32) -> World {
+        let (mesh, ids) = scene.world_mesh(iteration);
+        let silent = ids
+            .iter()
+            .map(|&i| !scene.objects[i as usize].returns)
+            .collect();
+        let mut chunks = ChunkBounds::default();
+        chunks.extend(&mesh.positions, &mesh.triangles);
+        World {
+            mesh,
+            chunks,
+            silent,
+        }
+    }
 }
 
 impl SimulatedSensor {
@@ -71,20 +98,35 @@ impl SimulatedSensor {
             .map(|o| o.present_at(iteration))
             .collect();
         if self.world.as_ref().is_none_or(|(p, _)| *p != present) {
-            self.world = Some((present, scene.world_mesh(iteration).0));
+            self.world = Some((present, World::at(scene, iteration)));
         }
         let world = &self.world.as_ref().expect("set above").1;
+        let mesh = &world.mesh;
         // A tiny near plane: a surface closer than the minimum range still
         // hides what is behind it, it just gives no measurement.
-        self.rasterizer.render(
-            &world.positions,
-            &world.triangles,
+        let geometry = Geometry {
+            positions: &mesh.positions,
+            triangles: &mesh.triangles,
+            chunks: Some(&world.chunks),
+        };
+        self.rasterizer.render_visiting(
+            geometry,
             &self.intrinsics,
             pose,
             0.01,
             &mut self.target,
+            None,
+            |_, _| false,
         );
         let mut depth: DepthImage = self.target.depth.clone();
+        // Silent surfaces still hide what is behind them.
+        if world.silent.contains(&true) {
+            for (d, &t) in depth.data.iter_mut().zip(&self.target.triangle) {
+                if t != NO_TRIANGLE && world.silent[t as usize] {
+                    *d = 0.0;
+                }
+            }
+        }
         self.noise
             .apply(&mut depth, self.near, self.far, self.seed, iteration);
         depth.clamp_range(self.near, self.far);
