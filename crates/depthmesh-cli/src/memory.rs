@@ -7,7 +7,7 @@ use anyhow::{bail, Result};
 use clap::Args;
 use depthmesh::session::{MapConfig, Session};
 use depthmesh::tsdf::TsdfConfig;
-use depthmesh::Intrinsics;
+use depthmesh::{DepthImage, Intrinsics};
 
 /// Without /proc/meminfo, the budget when none is given.
 const FALLBACK_BUDGET: u64 = 8 << 30;
@@ -59,6 +59,17 @@ fn half_of_physical_memory() -> Option<u64> {
     Some(kib * 1024 / 2)
 }
 
+/// The median of a frame's measured depths, metres (`None` without any):
+/// the distance a recorded sequence's surfaces are typically at.
+pub fn median_depth(depth: &DepthImage) -> Option<f32> {
+    let mut valid: Vec<f32> = depth.data.iter().copied().filter(|d| *d > 0.0).collect();
+    if valid.is_empty() {
+        return None;
+    }
+    let middle = valid.len() / 2;
+    Some(*valid.select_nth_unstable_by(middle, f32::total_cmp).1)
+}
+
 /// Bytes as a person reads them.
 pub fn human(bytes: f64) -> String {
     const UNITS: [&str; 5] = ["B", "KiB", "MiB", "GiB", "TiB"];
@@ -80,10 +91,21 @@ impl MemoryArgs {
     }
 
     /// Refuses a map of `frames` frames from camera `k` that cannot fit
-    /// (a TSDF map's size is estimated; the others' stay small).
-    pub fn check_map(&self, map: &MapConfig, k: &Intrinsics, frames: usize) -> Result<()> {
+    /// (a TSDF map's size is estimated; the others' stay small), with
+    /// surfaces about `depth` metres away (`None`: at the far limit, an
+    /// upper bound).
+    pub fn check_map(
+        &self,
+        map: &MapConfig,
+        k: &Intrinsics,
+        frames: usize,
+        depth: Option<f32>,
+    ) -> Result<()> {
         match map {
-            MapConfig::Tsdf(t) => self.check_tsdf(&t.config, k, t.range.1, frames),
+            MapConfig::Tsdf(t) => {
+                let depth = depth.map_or(t.range.1, |d| d.clamp(t.range.0, t.range.1));
+                self.check_tsdf(&t.config, k, depth, frames)
+            }
             _ => Ok(()),
         }
     }
@@ -94,10 +116,10 @@ impl MemoryArgs {
         &self,
         config: &TsdfConfig,
         k: &Intrinsics,
-        depth_max: f32,
+        depth: f32,
         frames: usize,
     ) -> Result<()> {
-        let estimate = config.estimate_bytes(k, depth_max, frames);
+        let estimate = config.estimate_bytes(k, depth, frames);
         let budget = self.budget();
         if estimate > budget as f64 {
             let hint = if config.voxel < 0.002 {
@@ -110,7 +132,7 @@ impl MemoryArgs {
                 String::new()
             };
             bail!(
-                "invalid --voxel: {frames} frame(s) of {}×{} depth up to {depth_max} m \
+                "invalid --voxel: {frames} frame(s) of {}×{} depth around {depth:.1} m \
                  in {} m voxels need about {} of voxels, over the --max-memory budget of {}.{hint} \
                  Use larger voxels, fewer frames, a smaller --depth-max, or raise --max-memory",
                 k.width,

@@ -4,7 +4,7 @@
 use crate::dataset_args::DatasetArgs;
 use crate::export::RunExportArgs;
 use crate::map_args::MapArgs;
-use crate::memory::MemoryArgs;
+use crate::memory::{median_depth, MemoryArgs};
 use crate::out_dir::OutDir;
 use crate::progress;
 use crate::run::{failed_to_track, print_summary, report_event};
@@ -65,7 +65,8 @@ pub fn run(args: &ReconstructArgs, quiet: bool) -> Result<()> {
     if dataset.is_empty() {
         bail!("{}: no frames selected", args.dataset.display());
     }
-    if args.map.color && dataset.frame(0)?.color.is_none() {
+    let first = dataset.frame(0)?;
+    if args.map.color && first.color.is_none() {
         bail!(
             "--color: {} has no colour image for its first frame (7-Scenes: \
              frame-NNNNNN.color.jpg or .png; TUM: rgb.txt); without one the mesh would be black",
@@ -74,7 +75,8 @@ pub fn run(args: &ReconstructArgs, quiet: bool) -> Result<()> {
     }
     let k = dataset.intrinsics();
     let map = args.map.config(k);
-    args.memory.check_map(&map, &k, dataset.len())?;
+    let depth = median_depth(&first.depth);
+    args.memory.check_map(&map, &k, dataset.len(), depth)?;
     let mut session = Session::new(SessionConfig {
         intrinsics: k,
         map,

@@ -172,8 +172,9 @@ pub fn run_scene(args: &SimulateArgs, scene: &Scene, quiet: bool) -> Result<RunS
     let poses = args.path.build(scene, args.iterations)?;
     let mut sensor = SimulatedSensor::kinect(args.noise, args.seed);
     let map = map_config(args, &sensor);
+    // No frame yet to measure: the far limit bounds the estimate.
     args.memory
-        .check_map(&map, &sensor.intrinsics, poses.len())?;
+        .check_map(&map, &sensor.intrinsics, poses.len(), None)?;
     let mut session = Session::new(SessionConfig {
         intrinsics: sensor.intrinsics,
         map,

@@ -76,16 +76,17 @@ impl TsdfConfig {
     }
 
     /// About how many bytes of voxels mapping `frames` frames of camera `k`
-    /// with depths up to `depth_max` metres allocates: the least of two
-    /// bounds. Each frame allocates at most the blocks its truncation band
-    /// crosses (along the steepest ray), a block column per block-wide patch
-    /// of the view at `depth_max` (at most one per pixel); and frames of one view fuse into
+    /// of surfaces `depth` metres away allocates (the far limit gives an
+    /// upper bound): the least of two bounds. Each frame allocates at most
+    /// the blocks its truncation band crosses (along the steepest ray), a
+    /// block column per block-wide patch of the view at `depth` (at most one
+    /// per pixel); and frames of one view fuse into
     /// the same columns, but a depth camera's noise spreads their bands over
     /// ±3σ. A moving camera sees more than one view, so this is a floor for
     /// refusing settings no machine can hold, not a promise.
-    pub fn estimate_bytes(&self, k: &Intrinsics, depth_max: f32, frames: usize) -> f64 {
+    pub fn estimate_bytes(&self, k: &Intrinsics, depth: f32, frames: usize) -> f64 {
         let side = f64::from(self.voxel) * BLOCK as f64;
-        let z = f64::from(depth_max);
+        let z = f64::from(depth);
         let across = |pixels: u32, f: f32| f64::from(pixels) * z / (f64::from(f) * side) + 1.0;
         let columns = (across(k.width, k.fx) * across(k.height, k.fy))
             .min(f64::from(k.width) * f64::from(k.height));
