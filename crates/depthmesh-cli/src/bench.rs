@@ -62,9 +62,10 @@ pub struct CodecBenchArgs {
 pub struct PlanesBenchArgs {
     /// A 7-Scenes frames folder or TUM RGB-D folder with poses.
     pub dataset: PathBuf,
-    /// Frames to read from the start (their points are inserted in one timed pass).
-    #[arg(long, default_value_t = 100)]
-    pub frames: usize,
+    /// Frame numbers to use, `A..B` (half-open), as everywhere; their points
+    /// are inserted in one timed pass. A range beyond the dataset is refused.
+    #[arg(long, default_value = "0..100")]
+    pub frames: FrameRange,
     /// Timed passes, each into a fresh map; the median is reported.
     #[arg(long, default_value_t = 5)]
     pub repeats: u32,
@@ -128,17 +129,27 @@ fn median(mut v: Vec<f64>) -> f64 {
 }
 
 fn planes(args: &PlanesBenchArgs) -> Result<()> {
-    if args.frames == 0 || args.repeats == 0 {
-        bail!("--frames and --repeats must be at least 1");
+    if args.repeats == 0 {
+        bail!("--repeats must be at least 1");
     }
     let options = DatasetOptions {
-        frames: Some(FrameRange {
-            start: 0,
-            end: Some(args.frames),
-        }),
+        frames: Some(args.frames),
         ..DatasetOptions::default()
     };
     let dataset = Dataset::open(&args.dataset, &options)?;
+    if dataset.is_empty() {
+        bail!("--frames: no frames of {} selected", args.dataset.display());
+    }
+    if let Some(end) = args.frames.end {
+        if dataset.len() < end.saturating_sub(args.frames.start) {
+            bail!(
+                "--frames {}..{end}: {} has only {} of those frames",
+                args.frames.start,
+                args.dataset.display(),
+                dataset.len()
+            );
+        }
+    }
     let k = dataset.intrinsics();
     // Frames are read (PNG decoding) before timing.
     let mut frames = Vec::with_capacity(dataset.len());
@@ -236,7 +247,8 @@ fn mabdi(args: &MabdiBenchArgs) -> Result<()> {
     let poses = PathSpec::Helix.build(&scene, args.iterations + 1)?;
     let poses = &poses[1..];
     if let Some(dir) = &args.out {
-        std::fs::create_dir_all(dir)?;
+        std::fs::create_dir_all(dir)
+            .with_context(|| format!("--out {}: cannot create the folder", dir.display()))?;
         write_ply(&dir.join("mesh.ply"), &m, PlyFormat::BinaryLittleEndian)?;
         let stamped: Vec<_> = poses
             .iter()

@@ -17,6 +17,11 @@ pub struct DatasetArgs {
     /// Intrinsics fx,fy,cx,cy[,width,height] or a file (3×3 K, or "w h fx fy cx cy").
     #[arg(long)]
     pub intrinsics: Option<String>,
+    /// Depth PNG units per metre, for folders not in the layout's own
+    /// (default 1000, millimetres, for 7-Scenes; 5000 for TUM; e.g. 4000 for
+    /// some RealSense recordings).
+    #[arg(long, allow_negative_numbers = true)]
+    pub depth_scale: Option<f32>,
 }
 
 impl DatasetArgs {
@@ -30,6 +35,7 @@ impl DatasetArgs {
                 .as_deref()
                 .map(IntrinsicsSpec::from_arg)
                 .transpose()?,
+            depth_units_per_metre: self.depth_scale,
             ..base
         })
     }

@@ -1,9 +1,10 @@
 //! `depthmesh demo`: the thesis's experiments (Table 4.1) on built-in scenes,
 //! with no external data needed for the first one.
 
+use crate::out_dir;
 use crate::planes::PlanesArgs;
 use crate::simulate::{self, MapKind, SimulateArgs};
-use anyhow::Result;
+use anyhow::{bail, Result};
 use clap::Args;
 use depthmesh::sim::{NoiseModel, PathSpec};
 use serde_json::{Map, Value};
@@ -26,6 +27,9 @@ pub struct DemoArgs {
     /// an object-removal run are added.
     #[arg(long)]
     pub bunny: Option<PathBuf>,
+    /// Replace the runs of an earlier demo in --out.
+    #[arg(long)]
+    pub force: bool,
 }
 
 /// One experiment of the demo.
@@ -79,7 +83,13 @@ pub fn run(args: &DemoArgs, quiet: bool) -> Result<()> {
         eprintln!("note: runs 2 and 3 (bunnies) need the bunny mesh: pass --bunny PATH");
     }
 
-    let mut rows = Vec::new();
+    if let Some(bunny) = &args.bunny {
+        if !bunny.is_file() {
+            bail!("--bunny {}: no such file", bunny.display());
+        }
+    }
+    // Every run's scene and folder is checked before the first starts.
+    let mut runs = Vec::new();
     for e in &experiments {
         let sim = SimulateArgs {
             scene: PathBuf::from(e.source),
@@ -99,17 +109,24 @@ pub fn run(args: &DemoArgs, quiet: bool) -> Result<()> {
             dashboard: true,
             view: false,
             out: args.out.join(e.name),
+            force: args.force,
             export: Default::default(),
             bounded: Default::default(),
+            memory: Default::default(),
         };
+        out_dir::check(&sim.out, sim.force)?;
         let scene = simulate::load_scene(
             Path::new(e.source),
             Some(e.scene),
             sim.dynamic,
             sim.bunny.as_deref(),
         )?;
-        let result = simulate::run_scene(&sim, &scene, quiet)?;
-        rows.push((e.name, result.summary));
+        runs.push((e.name, sim, scene));
+    }
+    let mut rows = Vec::new();
+    for (name, sim, scene) in &runs {
+        let result = simulate::run_scene(sim, scene, quiet)?;
+        rows.push((*name, result.summary));
     }
     print_table(&rows);
     println!("outputs in {}", args.out.display());

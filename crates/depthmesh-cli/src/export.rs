@@ -43,14 +43,14 @@ pub enum Up {
 #[derive(Args, Debug, Clone)]
 pub struct AssetArgs {
     /// Keep this fraction of each chunk's triangles, in (0, 1] (seams and
-    /// borders locked).
-    #[arg(long)]
+    /// borders locked); `simplify --ratio` in the simplify command.
+    #[arg(long, alias = "ratio", allow_negative_numbers = true)]
     pub simplify: Option<f32>,
     /// Most vertices per chunk (65,535: 16-bit indices, Unreal Engine 3's limit).
     #[arg(long, default_value_t = DEFAULT_MAX_VERTICES)]
     pub chunk_vertices: usize,
     /// Engine units per metre (e.g. 50 for Unreal Units of 2 cm, 100 for centimetres).
-    #[arg(long, default_value_t = 1.0)]
+    #[arg(long, default_value_t = 1.0, allow_negative_numbers = true)]
     pub scale: f32,
     /// Up axis of the written files.
     #[arg(long, value_enum, default_value_t = Up::Y)]
@@ -149,7 +149,22 @@ pub struct ExportArgs {
 /// Runs `export`.
 pub fn run(args: &ExportArgs, quiet: bool) -> Result<()> {
     let format = match args.format {
-        Some(f) => f.into(),
+        Some(f) => {
+            let format = Format::from(f);
+            // A file whose extension says another format misleads whoever
+            // opens it.
+            if let Some(ext) = args.out.extension() {
+                if !ext.eq_ignore_ascii_case(format.extension()) {
+                    bail!(
+                        "--format {} but -o {} has the extension .{}: make them agree",
+                        format.extension(),
+                        args.out.display(),
+                        ext.to_string_lossy()
+                    );
+                }
+            }
+            format
+        }
         None => Format::of_path(&args.out)?,
     };
     let options = args.assets.options(format)?;
@@ -182,7 +197,7 @@ pub fn describe(report: &ExportReport) -> String {
     );
     if let Some(f) = &report.floor {
         line += &format!(
-            "; floor normal {:.3} {:.3} {:.3} levelled ({:.0} % of vertices on it)",
+            "; floor normal {:.3} {:.3} {:.3} levelled ({:.0} % of the surface on it)",
             f.normal.x,
             f.normal.y,
             f.normal.z,

@@ -8,6 +8,8 @@ mod draw;
 mod eval;
 mod export;
 mod map_args;
+mod memory;
+mod out_dir;
 mod planes;
 mod progress;
 mod reconstruct;
@@ -42,7 +44,8 @@ enum Command {
     Reconstruct(reconstruct::ReconstructArgs),
     /// Run the thesis's experiments on the built-in scenes and summarise them.
     Demo(demo::DemoArgs),
-    /// Measure speed on generated data (figures as JSON).
+    /// Measure speed (figures as JSON): MABDI on a generated scene, voxel
+    /// planes and depth codecs on a recorded dataset.
     #[command(subcommand)]
     Bench(bench::BenchCommand),
     /// Measure accuracy against a reference (trajectories).
@@ -93,6 +96,8 @@ const FLAGS: &[(&str, &str)] = &[
     ("stride", "--stride"),
     ("depth_min", "--depth-min"),
     ("depth_max", "--depth-max"),
+    ("depth_scale", "--depth-scale"),
+    ("min_weight", "--min-weight"),
     ("frames", "--frames"),
     ("intrinsics", "--intrinsics"),
     ("ratio", "--ratio"),

@@ -29,11 +29,15 @@ pub struct MapArgs {
     #[arg(long, value_enum, default_value_t = RealMap::Tsdf)]
     pub map: RealMap,
     /// Voxel size in metres (tsdf).
-    #[arg(long, default_value_t = 0.01)]
+    #[arg(long, default_value_t = 0.01, allow_negative_numbers = true)]
     pub voxel: f32,
     /// Truncation distance in metres (tsdf; default 4 voxels).
-    #[arg(long)]
+    #[arg(long, allow_negative_numbers = true)]
     pub trunc: Option<f32>,
+    /// Mesh only voxels fused from at least this many frames (tsdf; Open3D's
+    /// weight threshold; 1 meshes all observed surface).
+    #[arg(long, default_value_t = 1)]
+    pub min_weight: u16,
     /// Keep colour from the colour images (tsdf; 3 more bytes per voxel).
     #[arg(long)]
     pub color: bool,
@@ -66,6 +70,9 @@ impl MapArgs {
         if self.color && self.map != RealMap::Tsdf {
             bail!("--color applies to --map tsdf only");
         }
+        if self.min_weight != 1 && self.map != RealMap::Tsdf {
+            bail!("--min-weight applies to --map tsdf only");
+        }
         self.bounded.check(self.map == RealMap::Tsdf)
     }
 
@@ -78,6 +85,7 @@ impl MapArgs {
                     config.truncation = t;
                 }
                 config.color = self.color;
+                config.min_weight = self.min_weight;
                 MapConfig::Tsdf(TsdfSettings {
                     config,
                     range: (self.depth_min, self.depth_max),

@@ -6,7 +6,7 @@ use depthmesh::planes::{PlaneGridConfig, PlanesConfig};
 /// Flags of the voxel-planes back-end (`--map planes`).
 #[derive(Args, Debug, Clone)]
 pub struct PlanesArgs {
-    /// Voxel size in metres (planes; separate from --voxel, whose 1 cm suits the TSDF).
+    /// Voxel size of the voxel-planes map, metres (planes).
     #[arg(long, default_value_t = PlanesConfig::default().grid.voxel)]
     pub plane_voxel: f32,
     /// Coarse cell size in metres, a whole multiple of --plane-voxel (planes).

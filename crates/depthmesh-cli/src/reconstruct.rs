@@ -4,6 +4,8 @@
 use crate::dataset_args::DatasetArgs;
 use crate::export::RunExportArgs;
 use crate::map_args::MapArgs;
+use crate::memory::{median_depth, MemoryArgs};
+use crate::out_dir::OutDir;
 use crate::progress;
 use crate::run::{failed_to_track, print_summary, report_event};
 use crate::status::StatusWriter;
@@ -35,11 +37,16 @@ pub struct ReconstructArgs {
     /// Go on past unreadable frames, reporting them.
     #[arg(long)]
     pub skip_bad_frames: bool,
-    /// Output folder.
+    /// Output folder: new, empty, or an earlier run's with --force.
     #[arg(long)]
     pub out: PathBuf,
+    /// Replace an earlier run in --out (without it, a folder holding one is refused).
+    #[arg(long)]
+    pub force: bool,
     #[command(flatten)]
     pub export: RunExportArgs,
+    #[command(flatten)]
+    pub memory: MemoryArgs,
 }
 
 /// Runs `reconstruct`.
@@ -58,19 +65,34 @@ pub fn run(args: &ReconstructArgs, quiet: bool) -> Result<()> {
     if dataset.is_empty() {
         bail!("{}: no frames selected", args.dataset.display());
     }
+    let first = dataset.frame(0)?;
+    if args.map.color && first.color.is_none() {
+        bail!(
+            "--color: {} has no colour image for its first frame (7-Scenes: \
+             frame-NNNNNN.color.jpg or .png; TUM: rgb.txt); without one the mesh would be black",
+            args.dataset.display()
+        );
+    }
     let k = dataset.intrinsics();
+    let map = args.map.config(k);
+    let depth = median_depth(&first.depth);
+    args.memory.check_map(&map, &k, dataset.len(), depth)?;
     let mut session = Session::new(SessionConfig {
         intrinsics: k,
-        map: args.map.config(k),
+        map,
         tracking: args.track.then(TrackerConfig::default),
     })?;
     args.map.bounded.note_reach(&session);
+    let out = OutDir::prepare(&args.out, args.force)?;
     let mut files = RunFiles::create(&args.out, &session)?;
     let mut status = StatusWriter::new(args.status_every, files.path("status"));
     let bar = progress::bar(dataset.len() as u64, "reconstruct", quiet);
     let mut frames = dataset.frames();
+    let mut colourless = 0;
+    let mut stopped = None;
     for frame in frames.by_ref() {
         let frame = frame?;
+        colourless += usize::from(args.map.color && frame.color.is_none());
         let outcome = session
             .push(&frame)
             .with_context(|| format!("frame {}", frame.index))?;
@@ -79,8 +101,16 @@ pub fn run(args: &ReconstructArgs, quiet: bool) -> Result<()> {
         files.after_frame(&mut session)?;
         status.after_frame(&session, &k, pose, frame.index)?;
         bar.inc(1);
+        if let Some(why) = args.memory.exceeded(&session) {
+            bar.suspend(|| eprintln!("frame {}: {why}: stopping", frame.index));
+            stopped = Some((frame.index, why));
+            break;
+        }
     }
     bar.finish_and_clear();
+    if colourless > 0 {
+        eprintln!("warning: --color: {colourless} frame(s) had no colour image and left no colour");
+    }
     for s in frames.skipped() {
         eprintln!("skipped frame {}: {}", s.index, s.error);
     }
@@ -90,13 +120,21 @@ pub fn run(args: &ReconstructArgs, quiet: bool) -> Result<()> {
     let mut summary = Map::new();
     summary.insert("dataset".into(), args.dataset.display().to_string().into());
     summary.insert("skipped_frames".into(), json!(frames.skipped().len()));
+    if let Some((index, _)) = &stopped {
+        summary.insert("stopped_at_frame".into(), json!(index));
+    }
     summary.insert(
         "integrate_fps".into(),
         json!(session.records().len() as f64 / session.seconds()),
     );
     let summary = files.finish(&mut session, summary)?;
     args.export.write(session.mesh(), &args.out)?;
+    // A run that lost tracking keeps its files: they show what happened.
+    out.keep();
     print_summary(&summary, &args.out, quiet);
+    if let Some((index, why)) = stopped {
+        bail!("stopped after frame {index}: {why}; the files hold the frames up to it");
+    }
     if failed_to_track(&session) {
         bail!("tracking lost the camera: nothing past the first frame was fused");
     }

@@ -39,9 +39,10 @@ pub fn print_summary(summary: &Map<String, Value>, out: &Path, quiet: bool) {
     );
     if summary.get("tracking") == Some(&Value::Bool(true)) {
         line += &format!(
-            "; tracking lost {} time(s), {} frame(s) not fused",
+            "; tracking lost {} time(s), {} frame(s) not fused ({:.0} % fused)",
             get("lost"),
-            get("lost_frames")
+            get("lost_frames"),
+            100.0 * get("fused_fraction")
         );
     }
     if let Some(ate) = summary.get("ate_rmse_cm").and_then(Value::as_f64) {

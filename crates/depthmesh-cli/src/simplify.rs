@@ -15,8 +15,9 @@ pub struct SimplifyArgs {
     /// Output mesh; the format follows the extension (.ply, .obj, .glb).
     #[arg(short, long)]
     pub out: PathBuf,
-    /// Keep this fraction of the triangles, in (0, 1].
-    #[arg(long, conflicts_with = "target_triangles")]
+    /// Keep this fraction of the triangles, in (0, 1] (`--simplify` in
+    /// `export` and the mapping commands' export).
+    #[arg(long, alias = "simplify", conflicts_with = "target_triangles")]
     pub ratio: Option<f32>,
     /// Keep this many triangles.
     #[arg(long)]

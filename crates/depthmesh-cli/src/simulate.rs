@@ -3,6 +3,8 @@
 
 use crate::bounded::ActiveRadiusArgs;
 use crate::export::RunExportArgs;
+use crate::memory::MemoryArgs;
+use crate::out_dir::OutDir;
 use crate::planes::PlanesArgs;
 use crate::progress;
 use crate::run::{failed_to_track, print_summary, report_event};
@@ -63,7 +65,7 @@ pub struct SimulateArgs {
     #[arg(long)]
     pub dynamic: bool,
     /// Seed of the noise.
-    #[arg(long, default_value_t = 0)]
+    #[arg(long, default_value_t = 0, allow_negative_numbers = true)]
     pub seed: u64,
     /// Mesh file for `${bunny}` in scene files (e.g. the Stanford bunny PLY).
     #[arg(long)]
@@ -72,7 +74,7 @@ pub struct SimulateArgs {
     #[arg(long, default_value = "helix")]
     pub path: PathSpec,
     /// Novelty threshold in metres (default: the thesis's 0.01 in normalised depth, ≈ 0.01·z² m).
-    #[arg(long)]
+    #[arg(long, allow_negative_numbers = true)]
     pub threshold: Option<f32>,
     /// Keep triangles the sensor sees through (the thesis's behaviour) instead of removing them.
     #[arg(long)]
@@ -82,7 +84,7 @@ pub struct SimulateArgs {
     #[arg(long)]
     pub no_settle: bool,
     /// Voxel size in metres (tsdf; truncation 4 voxels).
-    #[arg(long, default_value_t = 0.01)]
+    #[arg(long, default_value_t = 0.01, allow_negative_numbers = true)]
     pub voxel: f32,
     /// Estimate poses by ICP against the map (only the first pose of the
     /// path is given); `trajectory.txt` then holds the estimates,
@@ -98,13 +100,18 @@ pub struct SimulateArgs {
     /// dashboard's third-person camera.
     #[arg(long)]
     pub view: bool,
-    /// Output folder.
+    /// Output folder: new, empty, or an earlier run's with --force.
     #[arg(long)]
     pub out: PathBuf,
+    /// Replace an earlier run in --out (without it, a folder holding one is refused).
+    #[arg(long)]
+    pub force: bool,
     #[command(flatten)]
     pub export: RunExportArgs,
     #[command(flatten)]
     pub bounded: ActiveRadiusArgs,
+    #[command(flatten)]
+    pub memory: MemoryArgs,
 }
 
 /// What a finished run reports to the caller (the demo's table).
@@ -164,12 +171,17 @@ pub fn run_scene(args: &SimulateArgs, scene: &Scene, quiet: bool) -> Result<RunS
     }
     let poses = args.path.build(scene, args.iterations)?;
     let mut sensor = SimulatedSensor::kinect(args.noise, args.seed);
+    let map = map_config(args, &sensor);
+    // No frame yet to measure: the far limit bounds the estimate.
+    args.memory
+        .check_map(&map, &sensor.intrinsics, poses.len(), None)?;
     let mut session = Session::new(SessionConfig {
         intrinsics: sensor.intrinsics,
-        map: map_config(args, &sensor),
+        map,
         tracking: args.track.then(TrackerConfig::default),
     })?;
     args.bounded.note_reach(&session);
+    let out = OutDir::prepare(&args.out, args.force)?;
     let mut files = RunFiles::create(&args.out, &session)?;
     let mut dashboard = args
         .dashboard
@@ -186,6 +198,7 @@ pub fn run_scene(args: &SimulateArgs, scene: &Scene, quiet: bool) -> Result<RunS
 
     let bar = progress::bar(poses.len() as u64, scene.name.as_str(), quiet);
     let mut sensor_seconds = 0.0;
+    let mut stopped = None;
     for (i, truth) in poses.iter().enumerate() {
         let iteration = i as u32 + 1;
         let start = Instant::now();
@@ -203,6 +216,11 @@ pub fn run_scene(args: &SimulateArgs, scene: &Scene, quiet: bool) -> Result<RunS
         let elements = session.records().last().map_or(0, |r| r.total_elements);
         bar.set_message(format!("{elements} elements"));
         bar.inc(1);
+        if let Some(why) = args.memory.exceeded(&session) {
+            bar.suspend(|| eprintln!("iteration {iteration}: {why}: stopping"));
+            stopped = Some((iteration, why));
+            break;
+        }
     }
     bar.finish_and_clear();
 
@@ -223,6 +241,9 @@ pub fn run_scene(args: &SimulateArgs, scene: &Scene, quiet: bool) -> Result<RunS
     summary.insert("seed".into(), args.seed.into());
     summary.insert("dynamic".into(), args.dynamic.into());
     summary.insert("path".into(), args.path.to_string().into());
+    if let Some((iteration, _)) = &stopped {
+        summary.insert("stopped_at_iteration".into(), json!(iteration));
+    }
     if args.track {
         // The true poses beside the estimated ones, and how far apart they
         // are over every frame (a lost frame counts at its last good pose).
@@ -253,7 +274,12 @@ pub fn run_scene(args: &SimulateArgs, scene: &Scene, quiet: bool) -> Result<RunS
     }
     let summary = files.finish(&mut session, summary)?;
     args.export.write(session.mesh(), &args.out)?;
+    // A run that lost tracking keeps its files: they show what happened.
+    out.keep();
     print_summary(&summary, &args.out, quiet);
+    if let Some((iteration, why)) = stopped {
+        bail!("stopped after iteration {iteration}: {why}; the files hold the iterations up to it");
+    }
     if failed_to_track(&session) {
         bail!("tracking lost the camera: nothing past the first frame was fused");
     }

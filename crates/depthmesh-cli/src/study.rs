@@ -52,8 +52,9 @@ pub struct StudyArgs {
     /// Use every K-th frame of the dataset.
     #[arg(long, default_value_t = 10)]
     pub stride: usize,
-    /// Simulated frames of the table scene (Kinect noise, the helix path).
-    #[arg(long, default_value_t = 30)]
+    /// Simulated frames of the table scene (Kinect noise, the helix path),
+    /// as `simulate --iterations`.
+    #[arg(long = "iterations", alias = "sim-iterations", default_value_t = 30)]
     pub sim_iterations: u32,
     /// Voxel sizes in metres, used by both methods.
     #[arg(
@@ -63,7 +64,7 @@ pub struct StudyArgs {
     )]
     pub voxels: Vec<f32>,
     /// Seed of the held-out pixel choice and of the simulated noise.
-    #[arg(long, default_value_t = 0)]
+    #[arg(long, default_value_t = 0, allow_negative_numbers = true)]
     pub seed: u64,
     /// Output folder: runtime_vs_points.png, error_vs_size.png, study.csv, study.md.
     #[arg(long)]
@@ -119,7 +120,7 @@ pub fn run(args: &StudyArgs, quiet: bool) -> Result<()> {
         bail!("--voxels must list positive sizes in metres");
     }
     if args.stride == 0 || args.sim_iterations == 0 {
-        bail!("--stride and --sim-iterations must be at least 1");
+        bail!("--stride and --iterations must be at least 1");
     }
     let mut sources = Vec::new();
     if let Some(path) = &args.dataset {

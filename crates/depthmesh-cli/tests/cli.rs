@@ -271,36 +271,33 @@ fn triangles(mesh: &Mesh) -> Vec<[[u32; 3]; 3]> {
 }
 
 #[test]
-fn a_run_that_fails_while_writing_leaves_no_summary_and_no_temporary_files() {
+fn a_rerun_with_force_replaces_the_whole_earlier_run() {
     let out = scratch("keep");
     let o = out.to_str().unwrap();
-    let ok = depthmesh(&[
-        "simulate",
-        "--scene",
-        TABLE,
-        "--iterations",
-        "1",
-        "--quiet",
-        "--out",
-        o,
-    ]);
-    assert!(ok.status.success());
-    // stats.csv cannot be written if a folder stands in its place.
+    let run = |force: bool| {
+        let mut args = vec![
+            "simulate",
+            "--scene",
+            TABLE,
+            "--iterations",
+            "1",
+            "--quiet",
+            "--out",
+            o,
+        ];
+        if force {
+            args.push("--force");
+        }
+        depthmesh(&args)
+    };
+    assert!(run(false).status.success());
+    // Something of the old run's that a new run would trip over (a folder
+    // where stats.csv goes): the new run starts from an empty folder.
     std::fs::remove_file(out.join("stats.csv")).unwrap();
     std::fs::create_dir(out.join("stats.csv")).unwrap();
-    let bad = depthmesh(&[
-        "simulate",
-        "--scene",
-        TABLE,
-        "--iterations",
-        "1",
-        "--quiet",
-        "--out",
-        o,
-    ]);
-    assert_fails_with(&bad, &["stats.csv"]);
-    // The summary marks a complete set of outputs: it must be gone.
-    assert!(!out.join("summary.json").exists());
+    assert_fails_with(&run(false), &["--force"]);
+    ok(&run(true));
+    assert!(out.join("stats.csv").is_file());
     let leftovers: Vec<String> = Path::new(o)
         .read_dir()
         .unwrap()
@@ -330,6 +327,7 @@ fn reconstruct_fuses_a_frames_folder() {
         "--simplify",
         "0.5",
         "--quiet",
+        "--force",
         "--out",
         out.to_str().unwrap(),
     ];

@@ -5,8 +5,6 @@ mod common;
 
 use common::{assert_fails_with, depthmesh, eval_json, ok, scratch, summary};
 use serde_json::Value;
-use std::path::{Path, PathBuf};
-use std::process::Output;
 
 #[test]
 fn a_noisy_simulated_sequence_is_tracked_within_a_centimetre() {
@@ -99,50 +97,10 @@ fn eval_measures_a_known_offset_in_centimetres() {
     std::fs::remove_dir_all(dir).unwrap();
 }
 
-/// `simulate --track` of a 20 m wall at z = 0 along the TUM path `poses`
-/// (2 cm TSDF); the run's output and its folder.
-fn track_along(dir: &Path, poses: &str) -> (Output, PathBuf) {
-    std::fs::write(
-        dir.join("wall.toml"),
-        "[[object]]\nname = \"wall\"\nshape = \"box\"\nsize = [20.0, 20.0, 0.1]\n",
-    )
-    .unwrap();
-    std::fs::write(dir.join("path.txt"), poses).unwrap();
-    let out = dir.join("out");
-    let path = format!("tum:{}", dir.join("path.txt").display());
-    let iterations = poses.lines().count().to_string();
-    let run = depthmesh(&[
-        "simulate",
-        "--scene",
-        dir.join("wall.toml").to_str().unwrap(),
-        "--map",
-        "tsdf",
-        "--voxel",
-        "0.02",
-        "--track",
-        "--path",
-        &path,
-        "--iterations",
-        &iterations,
-        "--quiet",
-        "--out",
-        out.to_str().unwrap(),
-    ]);
-    (run, out)
-}
-
 #[test]
 fn a_tracked_run_that_fuses_nothing_past_its_first_frame_fails() {
     let dir = scratch("track-away");
-    // The first frame sees the wall; then the camera turns round to face
-    // nothing at all, and no frame can be placed.
-    let poses: String = (0..5)
-        .map(|i| match i {
-            0 => "0 0 0 -2 0 0 0 1\n".to_string(),
-            i => format!("{i} 0 0 -2 0 1 0 0\n"),
-        })
-        .collect();
-    let (run, out) = track_along(&dir, &poses);
+    let (run, out) = common::turn_away_from_a_wall(&dir, &["--quiet"]);
     // Its files are written, so the person can see why, but it is a failure.
     assert!(!run.status.success());
     let stderr = String::from_utf8_lossy(&run.stderr);
@@ -152,7 +110,7 @@ fn a_tracked_run_that_fuses_nothing_past_its_first_frame_fails() {
         "{stderr}"
     );
     let s = summary(&out);
-    assert_eq!(s["lost_frames"], 4);
+    assert_eq!(s["lost_frames"], 5);
     assert_eq!(s["frames_fused"], 1);
     std::fs::remove_dir_all(dir).unwrap();
 }
@@ -164,7 +122,7 @@ fn staring_at_a_flat_wall_is_tracked_not_lost() {
     let poses: String = (0..6)
         .map(|i| format!("{i} {} 0 -2 0 0 0 1\n", 0.02 * i as f32))
         .collect();
-    let (run, out) = track_along(&dir, &poses);
+    let (run, out) = common::track_wall_path(&dir, &poses, &["--quiet"]);
     ok(&run);
     let stderr = String::from_utf8_lossy(&run.stderr);
     // Nothing contradicts the map: the motions the wall leaves free come

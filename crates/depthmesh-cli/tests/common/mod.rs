@@ -69,6 +69,65 @@ pub fn scene_colour(p: glam::Vec3) -> [u8; 3] {
     }
 }
 
+/// Writes a 16-bit greyscale depth PNG.
+#[allow(dead_code)] // not every test file needs it
+pub fn write_depth_png(path: &Path, width: u32, height: u32, values: &[u16]) {
+    let bytes: Vec<u8> = values.iter().flat_map(|v| v.to_be_bytes()).collect();
+    let mut encoder = png::Encoder::new(std::fs::File::create(path).unwrap(), width, height);
+    encoder.set_color(png::ColorType::Grayscale);
+    encoder.set_depth(png::BitDepth::Sixteen);
+    let mut writer = encoder.write_header().unwrap();
+    writer.write_image_data(&bytes).unwrap();
+}
+
+/// `simulate --track` (2 cm TSDF) of a 20 m wall at z = 0 along the TUM
+/// path `poses`, with `extra` flags. Returns the run and its output folder.
+#[allow(dead_code)] // not every test file needs it
+pub fn track_wall_path(dir: &Path, poses: &str, extra: &[&str]) -> (Output, PathBuf) {
+    std::fs::write(
+        dir.join("wall.toml"),
+        "[[object]]\nname = \"wall\"\nshape = \"box\"\nsize = [20.0, 20.0, 0.1]\n",
+    )
+    .unwrap();
+    std::fs::write(dir.join("path.txt"), poses).unwrap();
+    let out = dir.join("out");
+    let path = format!("tum:{}", dir.join("path.txt").display());
+    let scene = dir.join("wall.toml");
+    let iterations = poses.lines().count().to_string();
+    let mut args = vec![
+        "simulate",
+        "--scene",
+        scene.to_str().unwrap(),
+        "--map",
+        "tsdf",
+        "--voxel",
+        "0.02",
+        "--track",
+        "--path",
+        &path,
+        "--iterations",
+        &iterations,
+        "--out",
+        out.to_str().unwrap(),
+    ];
+    args.extend_from_slice(extra);
+    (depthmesh(&args), out)
+}
+
+/// Six tracked frames of [`track_wall_path`]: the first sees the wall, then
+/// the camera turns round to face nothing at all, so every frame after the
+/// first is lost and not fused.
+#[allow(dead_code)] // not every test file needs it
+pub fn turn_away_from_a_wall(dir: &Path, extra: &[&str]) -> (Output, PathBuf) {
+    let poses: String = (0..6)
+        .map(|i| match i {
+            0 => "0 0 0 -2 0 0 0 1\n".to_string(),
+            i => format!("{i} 0 0 -2 0 1 0 0\n"),
+        })
+        .collect();
+    track_wall_path(dir, &poses, extra)
+}
+
 /// Writes an 8-bit RGB PNG.
 #[allow(dead_code)] // not every test file needs it
 pub fn write_rgb_png(path: &Path, width: u32, height: u32, rgb: &[u8]) {
@@ -103,21 +162,14 @@ pub fn simulated_frames_folder(dir: &Path, frames: u32) {
         .enumerate()
     {
         let frame = sensor.capture(&scene, i as u32 + 1, pose);
-        let mm: Vec<u8> = frame
+        let mm: Vec<u16> = frame
             .depth
             .data
             .iter()
-            .flat_map(|d| ((d * 1000.0).round() as u16).to_be_bytes())
+            .map(|d| (d * 1000.0).round() as u16)
             .collect();
-        let file = std::fs::File::create(dir.join(format!("frame-{i:06}.depth.png"))).unwrap();
-        let mut encoder = png::Encoder::new(file, k.width, k.height);
-        encoder.set_color(png::ColorType::Grayscale);
-        encoder.set_depth(png::BitDepth::Sixteen);
-        encoder
-            .write_header()
-            .unwrap()
-            .write_image_data(&mm)
-            .unwrap();
+        let depth = dir.join(format!("frame-{i:06}.depth.png"));
+        write_depth_png(&depth, k.width, k.height, &mm);
         let rgb: Vec<u8> = (0..k.height)
             .flat_map(|v| (0..k.width).map(move |u| (u, v)))
             .zip(&frame.depth.data)
@@ -150,13 +202,25 @@ pub fn simulated_frames_folder(dir: &Path, frames: u32) {
 /// or a dataset folder), which must succeed.
 #[allow(dead_code)] // not every test file needs it
 pub fn eval_json(estimate: &std::path::Path, reference: &std::path::Path) -> serde_json::Value {
-    let eval = depthmesh(&[
+    eval_json_with(estimate, reference, &[])
+}
+
+/// [`eval_json`] with `extra` flags.
+#[allow(dead_code)] // not every test file needs it
+pub fn eval_json_with(
+    estimate: &std::path::Path,
+    reference: &std::path::Path,
+    extra: &[&str],
+) -> serde_json::Value {
+    let mut args = vec![
         "eval",
         "trajectory",
         estimate.to_str().unwrap(),
         reference.to_str().unwrap(),
         "--json",
-    ]);
+    ];
+    args.extend_from_slice(extra);
+    let eval = depthmesh(&args);
     ok(&eval);
     serde_json::from_slice(&eval.stdout).unwrap()
 }

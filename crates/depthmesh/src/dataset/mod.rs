@@ -42,6 +42,9 @@ pub struct DatasetOptions {
     pub color: bool,
     /// Leave out unreadable frames instead of failing (`--skip-bad-frames`); see [`Frames`].
     pub skip_bad_frames: bool,
+    /// Depth PNG units per metre overriding the layout's own (1000, millimetres,
+    /// for 7-Scenes; 5000 for TUM) (`--depth-scale`).
+    pub depth_units_per_metre: Option<f32>,
 }
 
 impl Default for DatasetOptions {
@@ -56,12 +59,21 @@ impl Default for DatasetOptions {
             intrinsics: None,
             color: false,
             skip_bad_frames: false,
+            depth_units_per_metre: None,
         }
     }
 }
 
 impl DatasetOptions {
     fn validate(&self) -> Result<()> {
+        if let Some(units) = self.depth_units_per_metre {
+            if !(units.is_finite() && units > 0.0) {
+                return Err(Error::parameter(
+                    "depth_scale",
+                    format!("{units} units per metre must be positive (1000 for millimetres)"),
+                ));
+            }
+        }
         if self.stride == 0 {
             return Err(Error::parameter("stride", "must be at least 1"));
         }
@@ -250,7 +262,9 @@ impl Dataset {
         Ok(Dataset {
             layout,
             intrinsics,
-            depth_units_per_metre: index.depth_units_per_metre,
+            depth_units_per_metre: options
+                .depth_units_per_metre
+                .unwrap_or(index.depth_units_per_metre),
             frames,
             options: options.clone(),
         })

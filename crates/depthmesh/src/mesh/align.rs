@@ -5,8 +5,9 @@
 //! floor is found as the plane with the most supporting vertices among those
 //! with (almost) the whole mesh on one side: a table or a counter has
 //! surface below it, a floor does not. Walls can pass that test too, so the
-//! largest such plane wins, which in a room scan is the floor. Candidates
-//! come from single vertices and their normals (RANSAC), and the winner is
+//! largest such plane wins, which in a room scan is the floor. Support is
+//! measured in surface area (points sampled over the triangles), candidates
+//! come from single samples and their normals (RANSAC), and the winner is
 //! refitted by least squares to its inliers.
 
 use crate::error::{Error, Result};
@@ -22,7 +23,7 @@ pub struct Floor {
     pub normal: Vec3,
     /// Signed distance of the plane from the origin along `normal`, metres.
     pub offset: f32,
-    /// Share of the sampled vertices on the plane.
+    /// Share of the surface (by area; of the vertices for a point cloud) on the plane.
     pub support: f32,
 }
 
@@ -51,17 +52,7 @@ const HYPOTHESES: usize = 500;
 
 /// Finds the floor of `mesh` (see the module notes). Deterministic.
 pub fn find_floor(mesh: &Mesh) -> Result<Floor> {
-    let mut normals = mesh.normals.clone();
-    if normals.is_empty() {
-        let mut m = mesh.clone();
-        m.compute_vertex_normals();
-        normals = m.normals;
-    }
-    let step = mesh.vertex_count().div_ceil(SAMPLES).max(1);
-    let points: Vec<(Vec3, Vec3)> = (0..mesh.vertex_count())
-        .step_by(step)
-        .filter_map(|i| normals[i].try_normalize().map(|n| (mesh.positions[i], n)))
-        .collect();
+    let points = surface_samples(mesh);
     if points.len() < 3 {
         return Err(Error::parameter(
             "align_floor",
@@ -89,6 +80,52 @@ pub fn find_floor(mesh: &Mesh) -> Result<Floor> {
         floor = refit(&points, &floor).unwrap_or(floor);
     }
     Ok(floor)
+}
+
+/// Points with their normals spread over the surface by area: support is
+/// then a share of the surface, not of the vertices. A scanned floor and a
+/// modelled one (a few large triangles under a finely tessellated object)
+/// weigh as much as they cover; counting vertices let a small dense object
+/// outvote a floor of four corners and tilt the result. A mesh without
+/// triangles (a point cloud) is sampled by its vertices and their normals.
+fn surface_samples(mesh: &Mesh) -> Vec<(Vec3, Vec3)> {
+    let mut rng = SmallRng::seed_from_u64(1);
+    let mut cumulative = Vec::with_capacity(mesh.triangle_count());
+    let mut total = 0.0f64;
+    for t in 0..mesh.triangle_count() {
+        total += f64::from(mesh.triangle_area(t));
+        cumulative.push(total);
+    }
+    if total <= 0.0 {
+        let mut normals = mesh.normals.clone();
+        if normals.len() != mesh.vertex_count() {
+            let mut m = mesh.clone();
+            m.compute_vertex_normals();
+            normals = m.normals;
+        }
+        let step = mesh.vertex_count().div_ceil(SAMPLES).max(1);
+        return (0..mesh.vertex_count())
+            .step_by(step)
+            .filter_map(|i| normals[i].try_normalize().map(|n| (mesh.positions[i], n)))
+            .collect();
+    }
+    // Stratified over the cumulative area: every part of the surface gets
+    // its share of samples whatever the random draws.
+    (0..SAMPLES)
+        .filter_map(|i| {
+            let target = (i as f64 + rng.gen::<f64>()) / SAMPLES as f64 * total;
+            let t = cumulative
+                .partition_point(|&c| c < target)
+                .min(cumulative.len() - 1);
+            let [a, b, c] = mesh.corners(t);
+            let normal = (b - a).cross(c - a).try_normalize()?;
+            let (mut u, mut v) = (rng.gen::<f32>(), rng.gen::<f32>());
+            if u + v > 1.0 {
+                (u, v) = (1.0 - u, 1.0 - v);
+            }
+            Some((a + u * (b - a) + v * (c - a), normal))
+        })
+        .collect()
 }
 
 /// Counts the support of plane (`n`, `d`) and orients it towards the

@@ -46,7 +46,7 @@ impl TsdfMapper {
             remesh_every: 0,
             intrinsics,
             volume: TsdfVolume::new(config)?,
-            cache: MeshCache::new(1),
+            cache: MeshCache::new(config.min_weight),
             mesh: Mesh::default(),
             assembled: true,
             range: (near, far),
@@ -109,7 +109,7 @@ impl TsdfMapper {
     /// incrementally updated mesh equals); with an active radius, of the
     /// blocks not written out yet.
     pub fn extract_mesh(&self) -> Mesh {
-        let mut cache = MeshCache::new(1);
+        let mut cache = MeshCache::new(self.volume.config().min_weight);
         cache.update(&self.volume);
         self.assemble(&cache)
     }

@@ -30,6 +30,13 @@ pub const BLOCK_VOXELS: usize = BLOCK * BLOCK * BLOCK;
 /// Scale of the stored distance: ±1 (the truncation) maps to ±32767.
 const TSDF_SCALE: f32 = 32767.0;
 
+/// Axial depth noise (σ, metres) of a structured-light depth camera at `z`
+/// metres (Nguyen, Izadi and Lovell 2012, the Kinect): the spread a map's
+/// truncation bands take over many frames.
+fn depth_noise(z: f64) -> f64 {
+    0.0012 + 0.0019 * (z - 0.4).powi(2)
+}
+
 /// Parameters of the fusion.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct TsdfConfig {
@@ -41,6 +48,10 @@ pub struct TsdfConfig {
     pub max_weight: u16,
     /// Keep an RGB colour per voxel (3 more bytes) from the frames' colour images.
     pub color: bool,
+    /// Marching cubes meshes only voxels fused at least this often (Open3D's
+    /// `weight_threshold`): above 1 it drops surface seen once, such as
+    /// flying pixels, at the cost of surface at the edge of the views.
+    pub min_weight: u16,
 }
 
 impl TsdfConfig {
@@ -51,7 +62,46 @@ impl TsdfConfig {
             truncation: 4.0 * voxel,
             max_weight: 1024,
             color: false,
+            min_weight: 1,
         }
+    }
+
+    /// Bytes a voxel takes: a distance and a weight, and a colour if kept.
+    pub fn bytes_per_voxel(&self) -> usize {
+        if self.color {
+            7
+        } else {
+            4
+        }
+    }
+
+    /// About how many bytes of voxels mapping `frames` frames of camera `k`
+    /// of surfaces `depth` metres away allocates (the far limit gives an
+    /// upper bound): the least of two bounds. Each frame allocates at most
+    /// the blocks its truncation band crosses (along the steepest ray), a
+    /// block column per block-wide patch of the view at `depth` (at most one
+    /// per pixel); and frames of one view fuse into
+    /// the same columns, but a depth camera's noise spreads their bands over
+    /// ±3σ. A moving camera sees more than one view, so this is a floor for
+    /// refusing settings no machine can hold, not a promise.
+    pub fn estimate_bytes(&self, k: &Intrinsics, depth: f32, frames: usize) -> f64 {
+        let side = f64::from(self.voxel) * BLOCK as f64;
+        let z = f64::from(depth);
+        let across = |pixels: u32, f: f32| f64::from(pixels) * z / (f64::from(f) * side) + 1.0;
+        let columns = (across(k.width, k.fx) * across(k.height, k.fy))
+            .min(f64::from(k.width) * f64::from(k.height));
+        // A band of depth `band` along the steepest (corner) ray crosses
+        // block faces across the view as well as along it.
+        let slope = |size: u32, c: f32, f: f32| f64::from(c.max(size as f32 - c) / f);
+        let (sx, sy) = (slope(k.width, k.cx, k.fx), slope(k.height, k.cy, k.fy));
+        let blocks_along = |band: f64| {
+            let crossings = |length: f64| (length / side).ceil();
+            crossings(band) + crossings(band * sx) + crossings(band * sy) + 1.0
+        };
+        let per_frame = blocks_along(2.0 * f64::from(self.truncation));
+        let fused = blocks_along((6.0 * depth_noise(z)).max(2.0 * f64::from(self.truncation)));
+        let blocks = columns * (per_frame * frames as f64).min(fused);
+        blocks * (BLOCK_VOXELS * self.bytes_per_voxel()) as f64
     }
 
     /// Rejects sizes that make no sense.
@@ -73,6 +123,15 @@ impl TsdfConfig {
         }
         if self.max_weight == 0 {
             return Err(Error::parameter("max weight", "must be at least 1"));
+        }
+        if !(1..=self.max_weight).contains(&self.min_weight) {
+            return Err(Error::parameter(
+                "min_weight",
+                format!(
+                    "must be between 1 and the largest weight {}, got {}",
+                    self.max_weight, self.min_weight
+                ),
+            ));
         }
         Ok(())
     }
@@ -204,9 +263,9 @@ impl TsdfVolume {
         point.clamp(lo, lo + side).distance(point)
     }
 
-    /// Bytes held by the voxels (4 per voxel, 7 with colour).
+    /// Bytes held by the voxels (see [`TsdfConfig::bytes_per_voxel`]).
     pub fn voxel_bytes(&self) -> usize {
-        self.blocks.len() * BLOCK_VOXELS * if self.config.color { 7 } else { 4 }
+        self.blocks.len() * BLOCK_VOXELS * self.config.bytes_per_voxel()
     }
 
     /// World position of voxel `(x, y, z)` of the block with `key`.
@@ -470,4 +529,38 @@ fn integrate_block(
         }
     }
     (readers, weights)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// Bytes one frame of a wall facing the camera at `z` metres allocates.
+    fn wall_bytes(config: TsdfConfig, k: &Intrinsics, z: f32) -> usize {
+        let mut volume = TsdfVolume::new(config).unwrap();
+        let mut depth = DepthImage::new(k.width, k.height);
+        depth.data.fill(z);
+        volume.integrate(&depth, None, k, &Pose::IDENTITY).unwrap();
+        volume.voxel_bytes()
+    }
+
+    #[test]
+    fn the_estimate_bounds_a_frame_and_grows_as_voxels_shrink() {
+        let k = Intrinsics::from_vertical_fov(160, 120, 60.0);
+        for voxel in [0.002, 0.01, 0.05] {
+            let config = TsdfConfig::new(voxel);
+            // A wall at the far limit is the frame that allocates most.
+            let actual = wall_bytes(config, &k, 4.0) as f64;
+            let estimate = config.estimate_bytes(&k, 4.0, 1);
+            // An upper bound for one frame, and within 4× of it: the
+            // bound counts every block the steepest ray's band crosses.
+            assert!(actual <= estimate, "{voxel}: {actual} > {estimate}");
+            assert!(estimate <= 4.0 * actual, "{voxel}: {estimate} ≫ {actual}");
+        }
+        let a = TsdfConfig::new(0.01).estimate_bytes(&k, 4.0, 100);
+        let b = TsdfConfig::new(0.001).estimate_bytes(&k, 4.0, 100);
+        // Ten times finer voxels: up to 100× the block columns (fewer once
+        // each pixel has its own) and more blocks along each ray.
+        assert!(b > 10.0 * a, "{b} vs {a}");
+    }
 }
