@@ -4,6 +4,7 @@
 //! figures into `--out`.
 
 use crate::dataset_args::DatasetArgs;
+use crate::out_dir::OutDir;
 use crate::progress;
 use crate::simulate::load_scene;
 use anyhow::{bail, Context, Result};
@@ -74,9 +75,13 @@ pub struct StreamArgs {
     /// Give up when the server says nothing for this many seconds.
     #[arg(long, default_value_t = 60)]
     pub timeout: u64,
-    /// Output folder: mesh.ply, summary.json, status/.
+    /// Output folder (mesh.ply, summary.json, status/): new, empty, or an
+    /// earlier run's with --force.
     #[arg(long)]
     pub out: PathBuf,
+    /// Replace the earlier run in --out.
+    #[arg(long)]
+    pub force: bool,
 }
 
 /// Runs `stream`.
@@ -92,8 +97,7 @@ pub fn run(args: &StreamArgs, quiet: bool) -> Result<()> {
         bail!("--realtime sends at the sensor's rate: give --rate FPS");
     }
     let source = open_source(args)?;
-    std::fs::create_dir_all(&args.out)
-        .with_context(|| format!("cannot create {}", args.out.display()))?;
+    let out = OutDir::prepare(&args.out, args.force)?;
     let options = StreamOptions {
         url: args.server.clone(),
         token: args.token.clone(),
@@ -141,6 +145,7 @@ pub fn run(args: &StreamArgs, quiet: bool) -> Result<()> {
     }
     let text = serde_json::to_string_pretty(&result.summary)?;
     write_atomic(&args.out.join("summary.json"), |w| writeln!(w, "{text}"))?;
+    out.keep();
     if !quiet {
         let s = &result.summary;
         eprintln!(
