@@ -408,17 +408,10 @@ impl<'a> Rays<'a> {
             let p = origin + dir * t;
             match sampler.nearest(p) {
                 Err(true) => {
-                    // No block holds the nearest voxel: skip to where the
-                    // ray leaves the points whose nearest voxel is in that
-                    // block — the block shifted back half a voxel. (Skipping
-                    // the block that holds `p` itself would jump over a
-                    // surface block whenever `p` lies in its last half voxel
-                    // and the ray runs towards decreasing coordinates.)
+                    // No block: skip to where the ray leaves it.
                     previous = None;
-                    let key = floor(p * sampler.scale + 0.5) >> BLOCK_SHIFT;
-                    let shifted = origin + Vec3::splat(0.5 * self.voxel);
-                    t = block_exit(shifted, dir, key.as_vec3(), block_size).max(t)
-                        + voxel_step * 0.5;
+                    let key = floor(p / block_size).as_vec3();
+                    t = block_exit(origin, dir, key, block_size).max(t) + voxel_step * 0.5;
                 }
                 Err(false) => {
                     previous = None;
