@@ -7,7 +7,7 @@ use crate::map_args::MapArgs;
 use crate::memory::{median_depth, MemoryArgs};
 use crate::out_dir::OutDir;
 use crate::progress;
-use crate::run::{failed_to_track, print_summary, report_event};
+use crate::run::{conclude, report_event};
 use crate::status::StatusWriter;
 use anyhow::{bail, Context, Result};
 use clap::Args;
@@ -131,12 +131,5 @@ pub fn run(args: &ReconstructArgs, quiet: bool) -> Result<()> {
     args.export.write(session.mesh(), &args.out)?;
     // A run that lost tracking keeps its files: they show what happened.
     out.keep();
-    print_summary(&summary, &args.out, quiet);
-    if let Some((index, why)) = stopped {
-        bail!("stopped after frame {index}: {why}; the files hold the frames up to it");
-    }
-    if failed_to_track(&session) {
-        bail!("tracking lost the camera: nothing past the first frame was fused");
-    }
-    Ok(())
+    conclude(&session, &summary, &args.out, quiet, "frame", stopped)
 }

@@ -1,6 +1,7 @@
 //! What the mapping commands share around a [`Session`]: telling the person
 //! watching when tracking is lost or recovered, and the closing lines.
 
+use anyhow::{bail, Result};
 use depthmesh::session::{Session, TrackEvent};
 use indicatif::ProgressBar;
 use serde_json::{Map, Value};
@@ -53,8 +54,30 @@ pub fn print_summary(summary: &Map<String, Value>, out: &Path, quiet: bool) {
 
 /// Whether a tracked run fused nothing past its first frame: such a run
 /// must not end as a success.
-pub fn failed_to_track(session: &Session) -> bool {
+fn failed_to_track(session: &Session) -> bool {
     session.config().tracking.is_some()
         && session.records().len() > 1
         && session.frames_fused() <= 1
+}
+
+/// The end of a mapping run whose files are written: the closing lines,
+/// then a failure if it stopped early (`stopped`: the last frame, called
+/// `what` — "frame" or "iteration" — and why) or if tracking fused nothing
+/// past the first frame. Such runs keep their files: they show what happened.
+pub fn conclude(
+    session: &Session,
+    summary: &Map<String, Value>,
+    out: &Path,
+    quiet: bool,
+    what: &str,
+    stopped: Option<(impl std::fmt::Display, String)>,
+) -> Result<()> {
+    print_summary(summary, out, quiet);
+    if let Some((index, why)) = stopped {
+        bail!("stopped after {what} {index}: {why}; the files hold the {what}s up to it");
+    }
+    if failed_to_track(session) {
+        bail!("tracking lost the camera: nothing past the first frame was fused");
+    }
+    Ok(())
 }

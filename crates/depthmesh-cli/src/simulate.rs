@@ -7,7 +7,7 @@ use crate::memory::MemoryArgs;
 use crate::out_dir::OutDir;
 use crate::planes::PlanesArgs;
 use crate::progress;
-use crate::run::{failed_to_track, print_summary, report_event};
+use crate::run::{conclude, report_event};
 use crate::views::{self, Dashboard, MapperView};
 use anyhow::{bail, Context, Result};
 use clap::{Args, ValueEnum};
@@ -276,13 +276,7 @@ pub fn run_scene(args: &SimulateArgs, scene: &Scene, quiet: bool) -> Result<RunS
     args.export.write(session.mesh(), &args.out)?;
     // A run that lost tracking keeps its files: they show what happened.
     out.keep();
-    print_summary(&summary, &args.out, quiet);
-    if let Some((iteration, why)) = stopped {
-        bail!("stopped after iteration {iteration}: {why}; the files hold the iterations up to it");
-    }
-    if failed_to_track(&session) {
-        bail!("tracking lost the camera: nothing past the first frame was fused");
-    }
+    conclude(&session, &summary, &args.out, quiet, "iteration", stopped)?;
     Ok(RunSummary { summary })
 }
 
