@@ -19,7 +19,7 @@ use depthmesh::sim::{NoiseModel, PathSpec, Scene, SceneOptions, SimulatedSensor}
 use depthmesh::trajectory::format_tum;
 use serde_json::json;
 use std::io::Write;
-use std::path::PathBuf;
+use std::path::{Path, PathBuf};
 use std::time::Instant;
 
 /// The table scene (built in, like the demo's).
@@ -123,33 +123,41 @@ pub fn run(command: &BenchCommand) -> Result<()> {
     }
 }
 
+/// The frames `frames` of the dataset at `path` for a benchmark of
+/// `repeats` passes: a range reaching past the data is refused rather than
+/// silently cut short.
+fn bench_dataset(path: &Path, frames: FrameRange, repeats: u32) -> Result<Dataset> {
+    if repeats == 0 {
+        bail!("--repeats must be at least 1");
+    }
+    let options = DatasetOptions {
+        frames: Some(frames),
+        ..DatasetOptions::default()
+    };
+    let dataset = Dataset::open(path, &options)?;
+    if dataset.is_empty() {
+        bail!("--frames: no frames of {} selected", path.display());
+    }
+    if let Some(end) = frames.end {
+        if dataset.len() < end.saturating_sub(frames.start) {
+            bail!(
+                "--frames {}..{end}: {} has only {} of those frames",
+                frames.start,
+                path.display(),
+                dataset.len()
+            );
+        }
+    }
+    Ok(dataset)
+}
+
 fn median(mut v: Vec<f64>) -> f64 {
     v.sort_by(f64::total_cmp);
     v[v.len() / 2]
 }
 
 fn planes(args: &PlanesBenchArgs) -> Result<()> {
-    if args.repeats == 0 {
-        bail!("--repeats must be at least 1");
-    }
-    let options = DatasetOptions {
-        frames: Some(args.frames),
-        ..DatasetOptions::default()
-    };
-    let dataset = Dataset::open(&args.dataset, &options)?;
-    if dataset.is_empty() {
-        bail!("--frames: no frames of {} selected", args.dataset.display());
-    }
-    if let Some(end) = args.frames.end {
-        if dataset.len() < end.saturating_sub(args.frames.start) {
-            bail!(
-                "--frames {}..{end}: {} has only {} of those frames",
-                args.frames.start,
-                args.dataset.display(),
-                dataset.len()
-            );
-        }
-    }
+    let dataset = bench_dataset(&args.dataset, args.frames, args.repeats)?;
     let k = dataset.intrinsics();
     // Frames are read (PNG decoding) before timing.
     let mut frames = Vec::with_capacity(dataset.len());
@@ -308,14 +316,7 @@ fn mabdi(args: &MabdiBenchArgs) -> Result<()> {
 }
 
 fn codec(args: &CodecBenchArgs) -> Result<()> {
-    if args.repeats == 0 {
-        bail!("--repeats must be at least 1");
-    }
-    let options = DatasetOptions {
-        frames: Some(args.frames),
-        ..DatasetOptions::default()
-    };
-    let dataset = Dataset::open(&args.dataset, &options)?;
+    let dataset = bench_dataset(&args.dataset, args.frames, args.repeats)?;
     // Frames are read (PNG decoding) before timing.
     let mut frames = Vec::with_capacity(dataset.len());
     for i in 0..dataset.len() {
