@@ -260,6 +260,28 @@ impl MabdiMapper {
         &self.mesh
     }
 
+    /// Starts noting changed patches for a viewer, which receives M patch
+    /// by patch (an iteration's novel surface each); returns every patch's id.
+    pub fn follow_patches(&mut self) -> Vec<u32> {
+        self.patches.follow()
+    }
+
+    /// The patches added, changed (removal, simplification) or emptied
+    /// since the last call (or [`MabdiMapper::follow_patches`]).
+    pub fn changed_patches(&mut self) -> Vec<u32> {
+        self.patches.take_changed()
+    }
+
+    /// The mesh of each patch `ids[i]` now: empty for one that lost all
+    /// its triangles.
+    pub fn patch_meshes(&self, ids: &[u32]) -> Vec<Mesh> {
+        self.patches
+            .ranges(ids)
+            .into_iter()
+            .map(|r| r.map_or_else(Mesh::default, |r| self.mesh.triangle_range(r)))
+            .collect()
+    }
+
     /// Drops the triangles whose removal votes reached the limit, and the
     /// vertices left unused. Only the patches from the one holding the first
     /// removed triangle on are touched: M's vertices come in patch order, so

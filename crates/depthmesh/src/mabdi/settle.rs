@@ -45,6 +45,8 @@ const GROUP: usize = 2 * 64 * 64 * 2;
 /// One iteration's addition to M.
 #[derive(Clone, Copy, Debug)]
 struct Patch {
+    /// Its name for viewers: patches are numbered as they come.
+    id: u32,
     /// Triangles it has now.
     len: usize,
     /// The sensor pose that saw it, if known.
@@ -55,17 +57,74 @@ struct Patch {
     done: bool,
 }
 
-/// The patches of M, in M's triangle order.
+/// The patches of M, in M's triangle order (which is also their ids' order).
 #[derive(Clone, Debug, Default)]
 pub struct Patches {
     patches: Vec<Patch>,
+    /// The id the next patch gets.
+    next_id: u32,
+    /// Patches added, changed or emptied since [`Patches::take_changed`],
+    /// while a viewer follows M.
+    changed: Option<Vec<u32>>,
 }
 
 impl Patches {
+    /// Numbers a new patch and notes it for viewers.
+    fn new_id(&mut self) -> u32 {
+        let id = self.next_id;
+        self.next_id += 1;
+        self.note(id);
+        id
+    }
+
+    fn note(&mut self, id: u32) {
+        if let Some(changed) = &mut self.changed {
+            changed.push(id);
+        }
+    }
+
+    /// Starts noting changed patches for a viewer; returns every patch's id.
+    pub fn follow(&mut self) -> Vec<u32> {
+        self.changed = Some(Vec::new());
+        self.patches.iter().map(|p| p.id).collect()
+    }
+
+    /// The patches added, changed or emptied since the last call (or
+    /// [`Patches::follow`]), ascending; empty when not followed.
+    pub fn take_changed(&mut self) -> Vec<u32> {
+        let mut ids = self
+            .changed
+            .as_mut()
+            .map(std::mem::take)
+            .unwrap_or_default();
+        ids.sort_unstable();
+        ids.dedup();
+        ids
+    }
+
+    /// The triangles of M each patch `ids[i]` holds now; `None` for a patch
+    /// that lost all of them.
+    pub fn ranges(&self, ids: &[u32]) -> Vec<Option<std::ops::Range<usize>>> {
+        let mut starts = Vec::with_capacity(self.patches.len());
+        let mut start = 0;
+        for p in &self.patches {
+            starts.push(start);
+            start += p.len;
+        }
+        ids.iter()
+            .map(|id| {
+                let i = self.patches.binary_search_by_key(id, |p| p.id).ok()?;
+                Some(starts[i]..starts[i] + self.patches[i].len)
+            })
+            .collect()
+    }
+
     /// Accounts for a starting mesh of `triangles`, never simplified.
     pub fn start(&mut self, triangles: usize) {
         if triangles > 0 {
+            let id = self.new_id();
             self.patches.push(Patch {
+                id,
                 len: triangles,
                 pose: None,
                 changed: 0,
@@ -77,7 +136,9 @@ impl Patches {
     /// Accounts for `triangles` appended at `iteration`, seen from `pose`.
     pub fn added(&mut self, triangles: usize, pose: &Pose, iteration: u32) {
         if triangles > 0 {
+            let id = self.new_id();
             self.patches.push(Patch {
+                id,
                 len: triangles,
                 pose: Some(*pose),
                 changed: iteration,
@@ -114,6 +175,11 @@ impl Patches {
             // part of itself is changing.
             if (p.len - left) * 100 >= p.len {
                 p.changed = iteration;
+            }
+            if left < p.len {
+                if let Some(changed) = &mut self.changed {
+                    changed.push(p.id);
+                }
             }
             p.len = left;
         }
@@ -185,6 +251,7 @@ impl Patches {
                 patch_parts,
             );
             self.patches[i].done = true;
+            self.note(self.patches[i].id);
         }
         Ok(Some(Settled {
             fewer: before - mesh.triangle_count(),

@@ -26,6 +26,15 @@ pub struct Mesh {
     pub triangles: Vec<[u32; 3]>,
 }
 
+/// The run `run` of a per-vertex attribute, or nothing when it is absent.
+fn run_of<T: Copy>(attribute: &[T], run: &std::ops::Range<usize>) -> Vec<T> {
+    if attribute.is_empty() {
+        Vec::new()
+    } else {
+        attribute[run.clone()].to_vec()
+    }
+}
+
 /// An axis-aligned bounding box.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct Aabb {
@@ -140,6 +149,32 @@ impl Mesh {
                 .iter()
                 .map(|t| [t[0] + base, t[1] + base, t[2] + base]),
         );
+    }
+
+    /// The triangles `range` as a mesh of their own, with only the vertices
+    /// they use. Cheap when they use a short run of vertices, as a patch of
+    /// a mesh grown by appending does.
+    pub fn triangle_range(&self, range: std::ops::Range<usize>) -> Mesh {
+        let triangles = &self.triangles[range];
+        let Some((lo, hi)) =
+            triangles
+                .iter()
+                .flatten()
+                .fold(None, |acc: Option<(u32, u32)>, &v| {
+                    Some(acc.map_or((v, v + 1), |(lo, hi)| (lo.min(v), hi.max(v + 1))))
+                })
+        else {
+            return Mesh::default();
+        };
+        let run = lo as usize..hi as usize;
+        let mut mesh = Mesh {
+            positions: self.positions[run.clone()].to_vec(),
+            normals: run_of(&self.normals, &run),
+            colors: run_of(&self.colors, &run),
+            triangles: triangles.iter().map(|t| t.map(|v| v - lo)).collect(),
+        };
+        mesh.remove_unreferenced_vertices();
+        mesh
     }
 
     /// Applies `f` to every position and `g` to every normal.

@@ -157,6 +157,9 @@ pub struct PlanesMapper {
     dirty_unique: usize,
     /// Planar windows and their patches.
     patches: PatchCache,
+    /// Windows re-meshed since [`PlanesMapper::changed_groups`], while a
+    /// viewer follows the map.
+    changed_windows: Option<Vec<IVec3>>,
     frames: u32,
     mesh: Mesh,
     /// Whether `mesh` reflects `patches` and no voxel is dirty.
@@ -177,6 +180,7 @@ impl PlanesMapper {
             dirty: Vec::new(),
             dirty_unique: 0,
             patches: PatchCache::default(),
+            changed_windows: None,
             frames: 0,
             mesh: Mesh::default(),
             assembled: true,
@@ -232,7 +236,62 @@ impl PlanesMapper {
             };
         }
         self.assembled = false;
+        if let Some(changed) = &mut self.changed_windows {
+            changed.extend_from_slice(&corners);
+        }
         corners.len()
+    }
+
+    /// Starts noting re-meshed windows for a viewer, which sees the map in
+    /// groups of [`WINDOW_GROUP`]³ windows; returns every group with a patch now.
+    pub fn follow_groups(&mut self) -> Vec<IVec3> {
+        self.remesh_dirty();
+        self.changed_windows = Some(Vec::new());
+        let mut groups: Vec<IVec3> = self.patches.keys().map(|&c| window_group(c)).collect();
+        sort_dedup(&mut groups);
+        groups
+    }
+
+    /// The groups with a window re-meshed since the last call (or
+    /// [`PlanesMapper::follow_groups`]), re-meshing what is due first.
+    pub fn changed_groups(&mut self) -> Vec<IVec3> {
+        self.remesh_dirty();
+        let mut groups: Vec<IVec3> = self
+            .changed_windows
+            .as_mut()
+            .map(std::mem::take)
+            .unwrap_or_default()
+            .into_iter()
+            .map(window_group)
+            .collect();
+        sort_dedup(&mut groups);
+        groups
+    }
+
+    fn remesh_dirty(&mut self) {
+        if !self.dirty.is_empty() {
+            self.remesh();
+        }
+    }
+
+    /// The mesh of each group's patches (in the order of `groups`), as of
+    /// the last re-mesh; in one pass over the patches.
+    pub fn group_meshes(&self, groups: &[IVec3]) -> Vec<Mesh> {
+        let slot: HashMap<IVec3, usize, BuildHasherDefault<KeyHasher>> =
+            groups.iter().enumerate().map(|(i, &g)| (g, i)).collect();
+        let mut members: Vec<Vec<IVec3>> = vec![Vec::new(); groups.len()];
+        for &corner in self.patches.keys() {
+            if let Some(&i) = slot.get(&window_group(corner)) {
+                members[i].push(corner);
+            }
+        }
+        members
+            .into_par_iter()
+            .map(|mut corners| {
+                corners.sort_unstable_by_key(|c| (c.z, c.y, c.x));
+                assemble(corners.iter().map(|c| &self.patches[c]))
+            })
+            .collect()
     }
 
     /// Windows classified planar (each owns the voxel-sized cube around its
@@ -273,6 +332,16 @@ impl PlanesMapper {
             self.extract_mesh()
         }
     }
+}
+
+/// Windows per side of the groups a viewer receives the map in: a few
+/// hundred small polygons per group keeps both the updates and the number
+/// of pieces on the viewer's side small.
+pub const WINDOW_GROUP: i32 = 8;
+
+/// The viewer's group of the window at `corner`.
+fn window_group(corner: IVec3) -> IVec3 {
+    corner.div_euclid(IVec3::splat(WINDOW_GROUP))
 }
 
 /// Sorts keys (z, then y, then x) and drops repeats.

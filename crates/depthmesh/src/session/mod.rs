@@ -17,6 +17,7 @@ pub mod backend;
 mod poses;
 pub mod run_files;
 pub mod status;
+pub mod view;
 
 pub use backend::{Backend, MapConfig, PlanesSettings, TsdfSettings};
 pub use poses::{TrackEvent, TrackRecord};
@@ -116,6 +117,9 @@ pub struct Session {
     backend: Backend,
     poses: PoseSource,
     records: Vec<FrameRecord>,
+    /// Triangles of an append-only mesh a viewer has been told of (see
+    /// [`view`]); `None` while no viewer follows.
+    view_seen: Option<usize>,
 }
 
 impl Session {
@@ -129,6 +133,7 @@ impl Session {
             backend,
             poses,
             records: Vec::new(),
+            view_seen: None,
         })
     }
 
@@ -422,5 +427,79 @@ mod tests {
         assert_eq!(session.backend().mapper().stats().vertices, Some(vertices));
         session.push(&frames[1]).unwrap();
         assert_eq!(session.backend().mapper().stats().vertices, None);
+    }
+
+    /// The map a viewer holds after following its parts frame by frame:
+    /// joined, the parts are the session's mesh, triangle for triangle.
+    #[test]
+    fn followed_parts_join_to_the_map_for_every_back_end() {
+        let (sensor, frames) = frames(8);
+        let tsdf = MapConfig::Tsdf(TsdfSettings {
+            config: TsdfConfig::new(0.03),
+            range: (sensor.near, sensor.far),
+            remesh_every: 2,
+            active_radius: None,
+        });
+        let planes = MapConfig::Planes(PlanesSettings {
+            config: crate::planes::PlanesConfig::default(),
+            remesh_every: 3,
+        });
+        let mabdi = crate::mabdi::MabdiConfig::thesis(sensor.intrinsics, sensor.near, sensor.far);
+        for map in [
+            tsdf,
+            planes,
+            MapConfig::Mabdi(mabdi),
+            MapConfig::Naive(mabdi),
+        ] {
+            let mut session = Session::new(SessionConfig {
+                intrinsics: sensor.intrinsics,
+                map,
+                tracking: None,
+            })
+            .unwrap();
+            let mut held: std::collections::HashMap<view::PartKey, Mesh> = Default::default();
+            let mut apply = |session: &Session, keys: Vec<view::PartKey>| {
+                for (k, mesh) in keys.iter().zip(session.part_meshes(&keys)) {
+                    match mesh {
+                        Some(m) if m.triangles.is_empty() => held.remove(k),
+                        Some(m) => held.insert(*k, m),
+                        None => None,
+                    };
+                }
+            };
+            session.push(&frames[0]).unwrap();
+            session.push(&frames[1]).unwrap();
+            let keys = session.follow_parts();
+            apply(&session, keys);
+            for f in &frames[2..] {
+                session.push(f).unwrap();
+                let keys = session.changed_parts();
+                apply(&session, keys);
+            }
+            let corners = |m: &Mesh| -> Vec<[u32; 9]> {
+                (0..m.triangle_count())
+                    .map(|t| {
+                        let c = m.corners(t);
+                        std::array::from_fn(|i| c[i / 3][i % 3].to_bits())
+                    })
+                    .collect()
+            };
+            // Asking for the mesh re-meshes what is due; a viewer then
+            // hears of it too.
+            session.mesh();
+            let keys = session.changed_parts();
+            apply(&session, keys);
+            let mut viewed: Vec<[u32; 9]> = held.values().flat_map(corners).collect();
+            let mut expected = corners(session.mesh());
+            viewed.sort_unstable();
+            expected.sort_unstable();
+            assert!(!expected.is_empty(), "{}", map.name());
+            assert_eq!(viewed.len(), expected.len(), "{}", map.name());
+            assert!(
+                viewed == expected,
+                "{}: the parts differ from the mesh",
+                map.name()
+            );
+        }
     }
 }

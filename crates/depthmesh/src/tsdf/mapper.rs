@@ -11,6 +11,7 @@ use crate::error::Result;
 use crate::image::{DepthImage, Frame};
 use crate::map::{IntegrateReport, MapStats, Mapper};
 use crate::mesh::Mesh;
+use glam::IVec3;
 use std::time::Instant;
 
 /// TSDF fusion with marching cubes; the blocks changed since the last
@@ -118,6 +119,31 @@ impl TsdfMapper {
         match &self.active {
             Some(active) => active.remainder(&self.volume, cache),
             None => cache.assemble(),
+        }
+    }
+
+    /// Starts noting re-meshed blocks for a viewer; returns every block
+    /// with triangles or a piece now (see [`MeshCache::follow`]).
+    pub fn follow_blocks(&mut self) -> Vec<IVec3> {
+        self.remesh_changed();
+        self.cache.follow()
+    }
+
+    /// The blocks whose mesh changed since the last call (re-meshing what is
+    /// due first); see [`MeshCache::take_changed`].
+    pub fn changed_blocks(&mut self) -> Vec<IVec3> {
+        self.remesh_changed();
+        self.cache.take_changed()
+    }
+
+    /// The share of the mesh block `key` owns (see [`MeshCache::block_mesh`]).
+    pub fn block_mesh(&self, key: IVec3) -> Option<Mesh> {
+        self.cache.block_mesh(key)
+    }
+
+    fn remesh_changed(&mut self) {
+        if self.cache.update(&self.volume) > 0 {
+            self.assembled = false;
         }
     }
 

@@ -47,6 +47,8 @@ pub struct MeshCache {
     frame: u32,
     /// Voxels with a smaller weight count as unobserved.
     min_weight: u16,
+    /// Blocks re-meshed since [`MeshCache::take_changed`], while followed.
+    changed: Option<Vec<IVec3>>,
 }
 
 /// Side of the gathered neighbourhood: voxels 0..=9 of a block.
@@ -152,6 +154,7 @@ impl MeshCache {
             pieces: KeyMap::default(),
             frame: 0,
             min_weight: min_weight.max(1),
+            changed: None,
         }
     }
 
@@ -182,7 +185,49 @@ impl MeshCache {
             self.pieces.insert(key, piece);
         }
         self.frame = volume.frames();
+        if let Some(changed) = &mut self.changed {
+            changed.extend_from_slice(&dirty);
+        }
         dirty.len()
+    }
+
+    /// Starts noting which blocks are re-meshed (for viewers that keep a
+    /// copy); returns every block that has a piece now.
+    pub fn follow(&mut self) -> Vec<IVec3> {
+        self.changed = Some(Vec::new());
+        sorted_keys(&self.pieces)
+    }
+
+    /// The blocks re-meshed since the last call (or [`MeshCache::follow`]),
+    /// sorted; empty when not followed. Blocks that left (evicted) are not
+    /// among them: their triangles stay part of the map.
+    pub fn take_changed(&mut self) -> Vec<IVec3> {
+        let mut keys = self
+            .changed
+            .as_mut()
+            .map(std::mem::take)
+            .unwrap_or_default();
+        keys.sort_unstable_by_key(|k| (k.x, k.y, k.z));
+        keys.dedup();
+        keys.retain(|k| self.pieces.contains_key(k));
+        keys
+    }
+
+    /// The triangles of the cubes block `key` owns, with the vertices they
+    /// use (some owned by the blocks above): the block's share of
+    /// [`MeshCache::assemble`]; `None` for a block without a piece (never
+    /// meshed, or evicted).
+    pub fn block_mesh(&self, key: IVec3) -> Option<Mesh> {
+        if !self.pieces.contains_key(&key) {
+            return None;
+        }
+        let owners: Vec<IVec3> = (0..8)
+            .map(|d| key + IVec3::new(d & 1, (d >> 1) & 1, (d >> 2) & 1))
+            .filter(|k| self.pieces.contains_key(k))
+            .collect();
+        let mut mesh = join(&self.pieces, &owners, &[key]);
+        mesh.remove_unreferenced_vertices();
+        Some(mesh)
     }
 
     /// The whole mesh: the blocks' pieces joined, in block-key order.
