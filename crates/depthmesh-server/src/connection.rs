@@ -8,6 +8,8 @@ use crate::protocol::{
     tagged, valid_session_name, ClientMessage, FrameMessage, ServerMessage, Verdict, MESH_MAGIC,
 };
 use crate::server::{Entry, Shared};
+use crate::view::feed::Feed;
+use crate::view::hub::ViewHub;
 use crate::worker::{Inbox, Job, Out, Progress, Worker};
 use axum::extract::ws::{Message, WebSocket};
 use depthmesh::session::run_files::RunFiles;
@@ -241,6 +243,7 @@ fn open(shared: &Shared, text: &str) -> Result<Opened, String> {
     .map_err(|e| e.to_string())?;
     let progress = Arc::new(Mutex::new(Progress::default()));
     let inbox = Arc::new(Inbox::default());
+    let view = Arc::new(ViewHub::new(view_info(&name, &session)));
     {
         let mut sessions = shared.sessions.lock().expect("sessions lock");
         let live = sessions.values().filter(|e| e.inbox.is_some()).count();
@@ -261,6 +264,7 @@ fn open(shared: &Shared, text: &str) -> Result<Opened, String> {
                 map: session.backend().mapper().name(),
                 progress: progress.clone(),
                 inbox: Some(inbox.clone()),
+                view: view.clone(),
             },
         );
     }
@@ -278,6 +282,8 @@ fn open(shared: &Shared, text: &str) -> Result<Opened, String> {
         max_pixels: limits.max_frame_pixels,
         status_every,
         progress,
+        feed: Feed::new(view, &k),
+        bytes_in: 0,
     };
     let (out_tx, out_rx) = mpsc::unbounded_channel();
     let thread_inbox = inbox.clone();
@@ -294,6 +300,26 @@ fn open(shared: &Shared, text: &str) -> Result<Opened, String> {
         inbox,
         out: out_rx,
         realtime,
+    })
+}
+
+/// What a viewer is told of a session first: its back-end, its camera,
+/// and how the page should group the map's parts into drawn meshes (by
+/// their keys shifted right this many bits: a few hundred draw calls for a
+/// room).
+fn view_info(name: &str, session: &Session) -> serde_json::Value {
+    let map = session.backend().mapper().name();
+    let group_bits = match map {
+        "tsdf" | "mabdi" => 3,
+        "planes" => 2,
+        _ => 0,
+    };
+    let k = session.config().intrinsics;
+    serde_json::json!({
+        "session": name,
+        "map": map,
+        "group_bits": group_bits,
+        "camera": {"width": k.width, "height": k.height, "fx": k.fx, "fy": k.fy, "cx": k.cx, "cy": k.cy},
     })
 }
 

@@ -9,8 +9,11 @@
 
 pub mod client;
 mod connection;
+mod jpeg;
 pub mod protocol;
 pub mod server;
+mod view;
+mod web;
 mod worker;
 
 pub use client::{stream, FrameSource, Progress, SourceFrame, StreamOptions, StreamResult};

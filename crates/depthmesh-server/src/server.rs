@@ -6,6 +6,8 @@
 //! them is told why and disconnected while the others carry on.
 
 use crate::connection;
+use crate::view::hub::ViewHub;
+use crate::web;
 use crate::worker::{Inbox, Progress};
 use axum::extract::ws::WebSocketUpgrade;
 use axum::extract::{Path as UrlPath, Query, State};
@@ -89,6 +91,8 @@ pub(crate) struct Entry {
     pub progress: Arc<Mutex<Progress>>,
     /// Its thread's queue while it maps; `None` once finished.
     pub inbox: Option<Arc<Inbox>>,
+    /// What its viewers see.
+    pub view: Arc<ViewHub>,
 }
 
 /// What every request handler shares.
@@ -132,6 +136,10 @@ impl Server {
             shutdown: shutdown.clone(),
         });
         let app = Router::new()
+            .route("/", get(web::page))
+            .route("/view/{name}", get(web::page))
+            .route("/assets/{file}", get(web::asset))
+            .route("/ws/view/{name}", get(web::view_socket))
             .route("/ws", get(upgrade))
             .route("/api/sessions", get(list))
             .route("/api/sessions/{name}/{file}", get(download))
@@ -156,7 +164,7 @@ impl Server {
 
 /// The token of a request: `Authorization: Bearer T`, or `?token=T` for
 /// links a browser follows.
-fn request_token(headers: &HeaderMap, query: &TokenQuery) -> Option<String> {
+pub(crate) fn request_token(headers: &HeaderMap, query: &TokenQuery) -> Option<String> {
     headers
         .get(header::AUTHORIZATION)
         .and_then(|v| v.to_str().ok())
@@ -165,12 +173,13 @@ fn request_token(headers: &HeaderMap, query: &TokenQuery) -> Option<String> {
         .or_else(|| query.token.clone())
 }
 
+/// A request's `?token=`.
 #[derive(Debug, Default, Deserialize)]
-struct TokenQuery {
-    token: Option<String>,
+pub(crate) struct TokenQuery {
+    pub token: Option<String>,
 }
 
-fn refuse(status: StatusCode, message: &str) -> Response {
+pub(crate) fn refuse(status: StatusCode, message: &str) -> Response {
     (status, Json(json!({ "error": message }))).into_response()
 }
 
@@ -194,12 +203,21 @@ async fn list(
         .iter()
         .map(|(name, e)| {
             let p = e.progress.lock().expect("progress lock").clone();
+            let (shown, ended) = e.view.with_shown(|s| {
+                (
+                    s.triangles,
+                    s.ended.as_ref().and_then(|v| v["triangles"].as_u64()),
+                )
+            });
             json!({
                 "name": name,
                 "map": e.map,
                 "live": e.inbox.is_some(),
                 "frames": p.frames,
                 "elements": p.elements,
+                // The mesh's triangles once the session ended; while it maps,
+                // those its viewers were last sent (null until one watched).
+                "triangles": ended.or((shown > 0).then_some(shown as u64)),
             })
         })
         .collect();

@@ -3,7 +3,9 @@
 //! sends verdicts and status images back; at the end it writes the run's
 //! files into `OUT/<session>/`.
 
+use crate::jpeg::ColorType;
 use crate::protocol::{pose_to_array, tagged, FrameMessage, Verdict, STATUS_MAGIC};
+use crate::view::feed::Feed;
 use depthmesh::codec::{Decoder, RawDepth};
 use depthmesh::mesh::Mesh;
 use depthmesh::session::run_files::RunFiles;
@@ -15,10 +17,6 @@ use serde_json::{Map, Value};
 use std::collections::VecDeque;
 use std::sync::{Arc, Condvar, Mutex};
 use tokio::sync::{mpsc, oneshot};
-
-/// JPEG quality of status images: grey shading survives it well at a tenth
-/// of the PNG's size.
-const STATUS_QUALITY: u8 = 80;
 
 /// Status images are drawn at half the sensor's resolution when it is at
 /// least this wide: enough to see what is still missing, at a quarter of
@@ -32,6 +30,8 @@ pub enum Job {
     Frame(FrameMessage),
     /// Send a copy of the current mesh.
     Mesh(oneshot::Sender<Mesh>),
+    /// A viewer joined: publish the view now, not at the next frame.
+    Publish,
     /// No more frames: write the run's files and stop.
     End,
 }
@@ -118,6 +118,10 @@ pub struct Worker {
     pub status_every: u32,
     /// Figures for the listing.
     pub progress: Arc<Mutex<Progress>>,
+    /// What the session's viewers are sent.
+    pub feed: Feed,
+    /// Compressed depth received so far, bytes.
+    pub bytes_in: u64,
 }
 
 impl Worker {
@@ -146,6 +150,8 @@ impl Worker {
                         mapped += 1;
                         let index = verdict.frame;
                         let _ = out.send(Out::Verdict(verdict));
+                        self.feed
+                            .after_frame(&mut self.session, &buffers.depth, self.bytes_in);
                         let due = self.status_every > 0 && mapped.is_multiple_of(self.status_every);
                         if let (true, Some(pose)) = (due, pose) {
                             buffers
@@ -164,10 +170,19 @@ impl Worker {
                 Job::Mesh(reply) => {
                     let _ = reply.send(self.session.mesh().clone());
                 }
+                Job::Publish => {
+                    self.feed
+                        .after_frame(&mut self.session, &buffers.depth, self.bytes_in);
+                }
                 Job::End => break,
             }
         }
         let finished = self.finish();
+        let mut ended = finished.clone().unwrap_or_default();
+        if let Some(m) = fatal.as_ref().or(finished.as_ref().err()) {
+            ended.insert("error".into(), m.clone().into());
+        }
+        self.feed.finish(&mut self.session, &ended);
         let _ = out.send(match (fatal, finished) {
             (Some(m), _) => Out::Fatal(m),
             (None, Ok(summary)) => Out::Finished(summary),
@@ -190,6 +205,7 @@ impl Worker {
                 &mut b.decoders.last_mut().expect("just pushed").1
             }
         };
+        self.bytes_in += msg.payload.len() as u64;
         decoder
             .decode_into(&msg.payload, &mut b.raw)
             .map_err(|e| format!("frame {}: {e}", msg.index))?;
@@ -258,16 +274,13 @@ struct Buffers {
     jpeg: Vec<u8>,
 }
 
-/// The status image as a greyscale JPEG in `out`; `None` if it cannot be
-/// encoded (an image larger than JPEG's 65,535 pixels a side).
+/// The status image as a greyscale JPEG in `out`.
 fn encode_jpeg<'a>(image: &StatusImage, out: &'a mut Vec<u8>) -> Option<&'a [u8]> {
-    out.clear();
-    let (w, h) = (
-        u16::try_from(image.width).ok()?,
-        u16::try_from(image.height).ok()?,
-    );
-    jpeg_encoder::Encoder::new(&mut *out, STATUS_QUALITY)
-        .encode(&image.pixels, w, h, jpeg_encoder::ColorType::Luma)
-        .ok()?;
-    Some(out)
+    crate::jpeg::encode(
+        &image.pixels,
+        image.width,
+        image.height,
+        ColorType::Luma,
+        out,
+    )
 }

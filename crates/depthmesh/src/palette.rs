@@ -62,6 +62,44 @@ pub fn hsv_to_rgb(hue: f32, saturation: f32, value: f32) -> [u8; 3] {
     [r, g, b].map(|v| ((v + m) * 255.0).round().clamp(0.0, 255.0) as u8)
 }
 
+/// Turbo sampled at 17 evenly spaced points; linear interpolation between
+/// them stays within 8 levels of the full 256-entry table, which is invisible
+/// and saves carrying the table.
+const TURBO: [[u8; 3]; 17] = [
+    [48, 18, 59],
+    [64, 64, 162],
+    [70, 107, 227],
+    [66, 148, 255],
+    [40, 188, 235],
+    [24, 221, 194],
+    [50, 242, 152],
+    [109, 254, 98],
+    [164, 252, 60],
+    [203, 237, 52],
+    [236, 209, 58],
+    [253, 174, 53],
+    [251, 129, 34],
+    [236, 83, 15],
+    [210, 49, 5],
+    [172, 23, 1],
+    [122, 4, 3],
+];
+
+/// Google's Turbo rainbow at `t` in `[0, 1]` (near to far; values outside
+/// are clamped, NaN is near): dark blue to dark red, with a lightness that
+/// rises and falls smoothly, so depth steps read as edges without the false
+/// bands of the classic jet map.
+pub fn turbo(t: f32) -> [u8; 3] {
+    let t = if t.is_nan() { 0.0 } else { t.clamp(0.0, 1.0) };
+    let x = t * (TURBO.len() - 1) as f32;
+    let i = (x as usize).min(TURBO.len() - 2);
+    let f = x - i as f32;
+    let (a, b) = (TURBO[i], TURBO[i + 1]);
+    std::array::from_fn(|c| {
+        (f32::from(a[c]) + (f32::from(b[c]) - f32::from(a[c])) * f).round() as u8
+    })
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;

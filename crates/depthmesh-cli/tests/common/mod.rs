@@ -1,6 +1,11 @@
 //! Helpers shared by the command-line tests: run the binary, a scratch
 //! folder per test, and the checks every failure must pass.
 
+#[allow(dead_code)] // not every test file needs it
+pub mod served;
+#[allow(dead_code)] // not every test file needs it
+pub mod webdriver;
+
 use std::path::{Path, PathBuf};
 use std::process::{Command, Output};
 
