@@ -21,6 +21,7 @@ mod status;
 mod stream;
 mod study;
 mod views;
+mod watch;
 
 use clap::{Parser, Subcommand};
 use std::process::ExitCode;
@@ -58,6 +59,8 @@ enum Command {
     Serve(serve::ServeArgs),
     /// Stream a recorded dataset or a simulated scene to a mapping server.
     Stream(stream::StreamArgs),
+    /// Follow a session's view without a browser and print what arrived (JSON).
+    Watch(watch::WatchArgs),
     /// Simplify a mesh file by quadric edge collapse.
     Simplify(simplify::SimplifyArgs),
     /// Write a mesh as game-engine assets: chunked GLB, OBJ or PLY.
@@ -75,6 +78,7 @@ fn main() -> ExitCode {
         Command::Study(args) => study::run(&args, cli.quiet),
         Command::Serve(args) => serve::run(&args),
         Command::Stream(args) => stream::run(&args, cli.quiet),
+        Command::Watch(args) => watch::run(&args),
         Command::Simplify(args) => simplify::run(&args, cli.quiet),
         Command::Export(args) => export::run(&args, cli.quiet),
     };

@@ -13,6 +13,7 @@ mod jpeg;
 pub mod protocol;
 pub mod server;
 mod view;
+pub mod watcher;
 mod web;
 mod worker;
 

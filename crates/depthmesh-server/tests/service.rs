@@ -201,6 +201,73 @@ async fn four_clients_at_once_each_get_every_frame_mapped_while_a_wrong_token_is
     std::fs::remove_dir_all(out).unwrap();
 }
 
+/// Watches session `name` on `url` once it exists (a viewer of a name not
+/// yet mapping is refused with 404).
+async fn watch_when_listed(url: String, name: &str) -> depthmesh_server::watcher::Watched {
+    let deadline = tokio::time::Instant::now() + WAIT;
+    loop {
+        match depthmesh_server::watcher::watch(&url, TOKEN, name, WAIT).await {
+            Ok(w) => return w,
+            Err(e) if e.contains("404") && tokio::time::Instant::now() < deadline => {
+                tokio::time::sleep(Duration::from_millis(20)).await;
+            }
+            Err(e) => panic!("{e}"),
+        }
+    }
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn viewers_end_with_the_sessions_triangles_while_a_stalled_one_holds_nothing_up() {
+    let out = scratch("viewers");
+    let server = start(&out, Limits::default()).await;
+    let url = format!("http://{}", server.addr);
+    let frames = frames(16);
+    // Paced, so that the viewers join while the session maps.
+    let mut o = options(&server, "watched");
+    o.rate = Some(40.0);
+    let source = Box::new(Frames(frames.clone(), 0));
+    let streaming = tokio::spawn(async move { stream(source, &o, false, |_| {}).await });
+    let watchers: Vec<_> = (0..2)
+        .map(|_| tokio::spawn(watch_when_listed(url.clone(), "watched")))
+        .collect();
+    // A viewer that connects and never reads: the session must not wait for it.
+    let stalled = loop {
+        let view = format!("ws://{}/ws/view/watched?token={TOKEN}", server.addr);
+        match tokio_tungstenite::connect_async(view).await {
+            Ok((socket, _)) => break socket,
+            Err(_) => tokio::time::sleep(Duration::from_millis(20)).await,
+        }
+    };
+    let r = tokio::time::timeout(WAIT, streaming)
+        .await
+        .expect("the session finished despite a stalled viewer")
+        .unwrap()
+        .unwrap();
+    assert_eq!(r.summary["frames_mapped"], 16);
+    let (ply, _) = offline(&frames, false);
+    let mesh = depthmesh::mesh::ply::read_ply_from_bytes(&ply, Path::new("offline.ply")).unwrap();
+    for w in watchers {
+        let w = w.await.unwrap();
+        let ended = w.ended.expect("the viewer heard the session end");
+        assert_eq!(ended["triangles"], mesh.triangle_count());
+        assert_eq!(w.triangles as usize, mesh.triangle_count());
+        assert_eq!(w.figures["frames"], 16);
+        assert!(w.part_messages as usize >= w.parts && w.parts > 0);
+    }
+    // A viewer that joins after the end gets the finished map, once.
+    let late = depthmesh_server::watcher::watch(&url, TOKEN, "watched", WAIT)
+        .await
+        .unwrap();
+    assert_eq!(late.triangles as usize, mesh.triangle_count());
+    assert_eq!(late.part_messages as usize, late.parts);
+    // Without the token, nothing is shown.
+    let refused = depthmesh_server::watcher::watch(&url, "guess", "watched", WAIT).await;
+    assert!(refused.unwrap_err().contains("401"));
+    drop(stalled);
+    server.stop().await.unwrap();
+    std::fs::remove_dir_all(out).unwrap();
+}
+
 type Socket =
     tokio_tungstenite::WebSocketStream<tokio_tungstenite::MaybeTlsStream<tokio::net::TcpStream>>;
 

@@ -336,7 +336,7 @@ class View {
     this.controls.target.copy(c);
     const dir = this.camera.position.clone().sub(c).normalize();
     if (!Number.isFinite(dir.x)) dir.set(0, -0.5, -1).normalize();
-    this.camera.position.copy(c).addScaledVector(dir, r * 2.2);
+    this.camera.position.copy(c).addScaledVector(dir, r * 1.4);
     this.framed = true;
   }
 

@@ -2,27 +2,39 @@
 //!
 //! Nothing is done until a viewer first connects; from then on, at most
 //! every [`TICK`], the parts the session changed are meshed and published.
-//! A part's first version goes out at once (the map visibly grows); later
-//! versions of the same part wait [`FIRST_WAIT`], doubling each time up to
-//! [`LAST_WAIT`], because a surface seen again mostly refines by a fraction
-//! of a voxel, which a viewer cannot see but would pay for in bytes. When the
-//! session ends, every part still waiting goes out, so viewers end with the
-//! session's mesh exactly.
+//! A part's first version goes out at once (the map visibly grows). A later
+//! version goes out only when its triangles changed (surface added, lost or
+//! re-connected) or a vertex moved more than [`TOLERANCE`], and not before
+//! [`FIRST_WAIT`] after the last one, doubling each time up to
+//! [`LAST_WAIT`]: a surface seen again mostly refines by a fraction of a
+//! voxel, which a viewer cannot see but would pay for in bytes. When the
+//! session ends, every part still waiting goes out under the same rule, so
+//! viewers end with the session's triangles exactly, each vertex within
+//! [`TOLERANCE`] of the session's mesh (downloads are the mesh itself).
 
 use super::hub::{ImageKind, Part, TrailPoint, Update, ViewHub};
 use crate::jpeg::{self, ColorType};
+use depthmesh::mesh::Mesh;
 use depthmesh::session::status::StatusImage;
 use depthmesh::session::view::PartKey;
 use depthmesh::session::Session;
 use depthmesh::track::pyramid::half;
 use depthmesh::{DepthImage, Intrinsics, Pose};
 use serde_json::{json, Map, Value};
-use std::collections::{BTreeSet, HashMap};
+use std::collections::{BTreeMap, BTreeSet, HashMap};
 use std::sync::Arc;
 use std::time::{Duration, Instant};
 
 /// Shortest time between two publications: five a second look live.
 pub const TICK: Duration = Duration::from_millis(200);
+/// A part is first sent once it has existed this long: at the edge of the
+/// view new surface grows over several frames, and one version of it
+/// costs less than several (the map on the page lags the sensor by this
+/// much; the status image does not).
+pub const FIRST_DELAY: Duration = Duration::from_millis(1000);
+/// A part's triangle count must change by this share of it for a new
+/// version to go out before the session ends.
+pub const GROWTH: f32 = 0.1;
 /// Wait before a part's second version is sent.
 pub const FIRST_WAIT: Duration = Duration::from_millis(500);
 /// Longest wait between versions of a part.
@@ -31,11 +43,22 @@ pub const LAST_WAIT: Duration = Duration::from_secs(8);
 /// Depths mapped to the ends of the depth image's colours, metres.
 const DEPTH_COLOURS: (f32, f32) = (0.3, 4.0);
 
-/// When each part was last sent, and how often.
-#[derive(Clone, Copy, Debug)]
+/// Shortest time between two images: ray casting the status image is the
+/// dearest part of a publication.
+pub const IMAGE_TICK: Duration = Duration::from_millis(500);
+
+/// How far a part's vertices may have moved, metres, before its new
+/// version is worth sending when its triangles are the same: a surface seen
+/// again refines by fractions of a millimetre, which no viewer can see.
+/// New, lost or re-connected triangles are always sent.
+pub const TOLERANCE: f32 = 0.002;
+
+/// When each part was last sent, how often, and which version.
+#[derive(Clone, Debug)]
 struct Sent {
     at: Instant,
     times: u32,
+    part: Arc<Part>,
 }
 
 /// What the session's thread keeps to feed its viewers.
@@ -43,9 +66,12 @@ pub struct Feed {
     hub: Arc<ViewHub>,
     following: bool,
     last: Option<Instant>,
+    last_images: Option<Instant>,
     sent: HashMap<PartKey, Sent>,
-    /// Changed parts whose new version waits its turn.
-    waiting: BTreeSet<PartKey>,
+    /// Changed parts whose new version waits its turn, since when.
+    waiting: BTreeMap<PartKey, Instant>,
+    /// Parts whose latest change was too small to send before the end.
+    stale: BTreeSet<PartKey>,
     /// Frames whose trajectory points were published.
     trail_sent: usize,
     /// Frames and bytes received at the last publication, for rates.
@@ -64,12 +90,14 @@ impl Feed {
             hub,
             following: false,
             last: None,
+            last_images: None,
             sent: HashMap::new(),
-            waiting: BTreeSet::new(),
+            waiting: BTreeMap::new(),
+            stale: BTreeSet::new(),
             trail_sent: 0,
             frames_then: 0,
             bytes_then: 0,
-            status_k: if k.width >= 320 { half(k) } else { *k },
+            status_k: quarter(k),
             status: StatusImage::default(),
             rgb: Vec::new(),
             jpeg: Vec::new(),
@@ -94,10 +122,12 @@ impl Feed {
             figures: Some(self.figures(session, now, bytes_in)),
             ..Update::default()
         };
-        // Images cost a ray cast: only for someone looking.
-        if self.hub.viewers() > 0 {
+        // Images cost a ray cast: only for someone looking, and less often.
+        let images_due = self.last_images.is_none_or(|t| now - t >= IMAGE_TICK);
+        if images_due && self.hub.viewers() > 0 {
             if let Some(r) = session.records().last() {
                 update.images = self.images(session, &r.estimate.clone(), depth);
+                self.last_images = Some(now);
             }
         }
         self.hub.publish(update);
@@ -132,25 +162,55 @@ impl Feed {
             self.following = true;
             session.follow_parts()
         };
-        self.waiting.extend(changed);
+        for k in changed {
+            self.stale.remove(&k);
+            self.waiting.entry(k).or_insert(now);
+        }
+        if all {
+            let stale = std::mem::take(&mut self.stale);
+            self.waiting.extend(stale.into_iter().map(|k| (k, now)));
+        }
         let due: Vec<PartKey> = self
             .waiting
             .iter()
-            .copied()
-            .filter(|k| all || self.sent.get(k).is_none_or(|s| now - s.at >= wait(s.times)))
+            .filter(|(k, since)| {
+                all || match self.sent.get(*k) {
+                    None => now - **since >= FIRST_DELAY,
+                    Some(s) => now - s.at >= wait(s.times),
+                }
+            })
+            .map(|(k, _)| *k)
             .collect();
         for k in &due {
             self.waiting.remove(k);
-            let s = self.sent.entry(*k).or_insert(Sent { at: now, times: 0 });
-            *s = Sent {
-                at: now,
-                times: s.times + 1,
-            };
         }
-        due.iter()
-            .zip(session.part_meshes(&due))
-            .filter_map(|(k, mesh)| mesh.map(|m| Part::new(*k, m)))
-            .collect()
+        let mut parts = Vec::with_capacity(due.len());
+        for (k, mesh) in due.iter().zip(session.part_meshes(&due)) {
+            // Not held (evicted): the viewer keeps what it has.
+            let Some(mesh) = mesh else { continue };
+            let times = match self.sent.get(k) {
+                // A part that never had triangles is not news.
+                None if mesh.triangles.is_empty() => continue,
+                Some(s) if same_within(&s.part.mesh, &mesh, TOLERANCE) => continue,
+                Some(s) if !all && !grew(&s.part.mesh, &mesh) => {
+                    self.stale.insert(*k);
+                    continue;
+                }
+                Some(s) => s.times + 1,
+                None => 1,
+            };
+            let part = Part::new(*k, mesh);
+            self.sent.insert(
+                *k,
+                Sent {
+                    at: now,
+                    times,
+                    part: part.clone(),
+                },
+            );
+            parts.push(part);
+        }
+        parts
     }
 
     /// Trajectory points of the frames since the last publication.
@@ -213,13 +273,15 @@ impl Feed {
             &mut self.jpeg,
         )
         .map(|j| Arc::new(super::wire::encode_image(ImageKind::Status as u32, j)));
-        if depth.width >= 2 && depth.height >= 2 {
-            let (w, h) = (depth.width / 2, depth.height / 2);
+        // The depth image at the status image's size, every n-th pixel.
+        let n = (depth.width / self.status_k.width.max(1)).max(1) as usize;
+        if depth.width as usize >= n && depth.height as usize >= n {
+            let (w, h) = (depth.width / n as u32, depth.height / n as u32);
             self.rgb.clear();
             let (near, far) = DEPTH_COLOURS;
             for y in 0..h as usize {
                 for x in 0..w as usize {
-                    let d = depth.data[2 * y * depth.width as usize + 2 * x];
+                    let d = depth.data[n * y * depth.width as usize + n * x];
                     let c = if d > 0.0 && d.is_finite() {
                         depthmesh::palette::turbo((d - near) / (far - near))
                     } else {
@@ -234,6 +296,38 @@ impl Feed {
         }
         images
     }
+}
+
+/// Whether a part's triangle count changed enough since the version sent
+/// to be worth sending before the session ends: by [`GROWTH`] of it.
+fn grew(old: &Mesh, new: &Mesh) -> bool {
+    let (a, b) = (old.triangle_count() as f32, new.triangle_count() as f32);
+    (a - b).abs() >= GROWTH * a.max(1.0)
+}
+
+/// Whether `new` has the triangles of `old` (the same vertices, joined
+/// the same way) with no vertex moved farther than `tolerance`.
+fn same_within(old: &Mesh, new: &Mesh, tolerance: f32) -> bool {
+    old.triangles == new.triangles
+        && old.positions.len() == new.positions.len()
+        && old
+            .positions
+            .iter()
+            .zip(&new.positions)
+            .all(|(a, b)| (*a - *b).abs().max_element() <= tolerance)
+}
+
+/// The camera the view's status image is drawn for: a quarter of the
+/// sensor's resolution (at most halved twice, keeping 80 pixels), as the
+/// page shows it small; ray casting it costs a sixteenth of a full one.
+fn quarter(k: &Intrinsics) -> Intrinsics {
+    let mut q = *k;
+    for _ in 0..2 {
+        if q.width >= 160 {
+            q = half(&q);
+        }
+    }
+    q
 }
 
 /// How long a part sent `times` times waits before its next version.
@@ -262,5 +356,32 @@ mod tests {
         assert_eq!(wait(2), 2 * FIRST_WAIT);
         assert_eq!(wait(3), 4 * FIRST_WAIT);
         assert_eq!(wait(40), LAST_WAIT);
+    }
+
+    fn strip(n: u32, lift: f32) -> Mesh {
+        let mut m = Mesh::default();
+        for i in 0..n + 2 {
+            m.positions.push(glam::Vec3::new(
+                i as f32 * 0.01,
+                (i % 2) as f32 * 0.01,
+                lift,
+            ));
+        }
+        m.triangles = (0..n).map(|i| [i, i + 1, i + 2]).collect();
+        m
+    }
+
+    #[test]
+    fn only_new_triangles_or_visible_moves_make_a_new_version() {
+        let sent = strip(100, 0.0);
+        // Refined by a fraction of a millimetre: the viewer keeps its version.
+        assert!(same_within(&sent, &strip(100, 0.0015), TOLERANCE));
+        // Moved visibly, or triangles changed: a new version.
+        assert!(!same_within(&sent, &strip(100, 0.003), TOLERANCE));
+        assert!(!same_within(&sent, &strip(99, 0.0), TOLERANCE));
+        // Before the end, only a change of a tenth of its triangles goes out.
+        assert!(!grew(&sent, &strip(95, 0.0)));
+        assert!(grew(&sent, &strip(110, 0.0)));
+        assert!(grew(&sent, &strip(50, 0.0)));
     }
 }

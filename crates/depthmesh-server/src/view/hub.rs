@@ -1,5 +1,6 @@
 //! What a session shows its viewers, and what each viewer has yet to get.
 
+use axum::body::Bytes;
 use depthmesh::mesh::Mesh;
 use depthmesh::session::view::PartKey;
 use serde_json::Value;
@@ -15,8 +16,9 @@ pub struct Part {
     pub key: PartKey,
     /// Its triangles now (none: the part is gone).
     pub mesh: Mesh,
-    /// The message viewers get, made by the first viewer that sends it.
-    encoded: OnceLock<Vec<u8>>,
+    /// The message viewers get, made by the first viewer that sends it
+    /// (shared, not copied, by the others).
+    encoded: OnceLock<Bytes>,
 }
 
 impl Part {
@@ -30,9 +32,10 @@ impl Part {
     }
 
     /// The part as a viewer message (see [`super::wire`]).
-    pub fn message(&self) -> &[u8] {
+    pub fn message(&self) -> Bytes {
         self.encoded
-            .get_or_init(|| super::wire::encode_part(self.key, &self.mesh))
+            .get_or_init(|| super::wire::encode_part(self.key, &self.mesh).into())
+            .clone()
     }
 }
 

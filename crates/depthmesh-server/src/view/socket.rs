@@ -68,8 +68,7 @@ async fn send_pending(tx: &mut Tx, hub: &ViewHub, viewer: &Viewer) -> Result<(),
         ended,
     } = viewer.take();
     for part in parts.values() {
-        tx.feed(Message::Binary(part.message().to_vec().into()))
-            .await?;
+        tx.feed(Message::Binary(part.message())).await?;
     }
     // Copied out so that the hub's lock is not held across a send.
     let (trail, figure_values, image_bytes, summary) = hub.with_shown(|s| {

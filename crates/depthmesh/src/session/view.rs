@@ -67,7 +67,10 @@ impl Session {
     /// bounded memory, whose triangles stay part of the map).
     pub fn part_meshes(&self, keys: &[PartKey]) -> Vec<Option<Mesh>> {
         match &self.backend {
-            Backend::Tsdf(t) => keys.iter().map(|&k| t.block_mesh(k.into())).collect(),
+            Backend::Tsdf(t) => {
+                let blocks: Vec<IVec3> = keys.iter().map(|&k| k.into()).collect();
+                t.block_meshes(&blocks)
+            }
             Backend::Planes(p) => {
                 let groups: Vec<IVec3> = keys.iter().map(|&k| k.into()).collect();
                 p.group_meshes(&groups).into_iter().map(Some).collect()

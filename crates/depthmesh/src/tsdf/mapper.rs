@@ -3,7 +3,7 @@
 //! an active region hand out the mesh of blocks left behind.
 
 use super::evict::ActiveRegion;
-use super::mesh::MeshCache;
+use super::mesh::{changed_since, extract_each, MeshCache};
 use super::raycast::RaycastImage;
 use super::{TsdfConfig, TsdfVolume};
 use crate::camera::{Intrinsics, Pose};
@@ -36,6 +36,8 @@ pub struct TsdfMapper {
     evicted_mesh: Mesh,
     /// Most blocks held at once.
     peak_blocks: usize,
+    /// Frames fused when a viewer last asked what changed (`None`: no viewer follows).
+    view_frame: Option<u32>,
 }
 
 impl TsdfMapper {
@@ -55,6 +57,7 @@ impl TsdfMapper {
             active: None,
             evicted_mesh: Mesh::default(),
             peak_blocks: 0,
+            view_frame: None,
         })
     }
 
@@ -122,29 +125,33 @@ impl TsdfMapper {
         }
     }
 
-    /// Starts noting re-meshed blocks for a viewer; returns every block
-    /// with triangles or a piece now (see [`MeshCache::follow`]).
+    /// Starts noting changed blocks for a viewer; returns every block the
+    /// volume holds (those without surface have an empty mesh).
     pub fn follow_blocks(&mut self) -> Vec<IVec3> {
-        self.remesh_changed();
-        self.cache.follow()
+        self.view_frame = Some(self.volume.frames());
+        let mut keys: Vec<IVec3> = self.volume.blocks().iter().map(|b| b.key).collect();
+        keys.sort_unstable_by_key(|k| (k.x, k.y, k.z));
+        keys
     }
 
-    /// The blocks whose mesh changed since the last call (re-meshing what is
-    /// due first); see [`MeshCache::take_changed`].
+    /// The blocks whose mesh may have changed since the last call (or
+    /// [`TsdfMapper::follow_blocks`]); empty while not followed. Nothing is
+    /// meshed: a viewer meshes only what it sends
+    /// ([`TsdfMapper::block_meshes`]), so following costs the mapping
+    /// nothing between sends.
     pub fn changed_blocks(&mut self) -> Vec<IVec3> {
-        self.remesh_changed();
-        self.cache.take_changed()
+        let Some(since) = self.view_frame else {
+            return Vec::new();
+        };
+        self.view_frame = Some(self.volume.frames());
+        changed_since(&self.volume, since, self.cache.min_weight())
     }
 
-    /// The share of the mesh block `key` owns (see [`MeshCache::block_mesh`]).
-    pub fn block_mesh(&self, key: IVec3) -> Option<Mesh> {
-        self.cache.block_mesh(key)
-    }
-
-    fn remesh_changed(&mut self) {
-        if self.cache.update(&self.volume) > 0 {
-            self.assembled = false;
-        }
+    /// The triangles each block of `keys` owns now, meshed from the volume
+    /// (what the assembled mesh holds for it); `None` for a block not held
+    /// (evicted by bounded memory: its triangles stay part of the map).
+    pub fn block_meshes(&self, keys: &[IVec3]) -> Vec<Option<Mesh>> {
+        extract_each(&self.volume, keys, self.cache.min_weight())
     }
 
     /// Ray casts the volume from `pose` (depth, points, normals).

@@ -47,8 +47,6 @@ pub struct MeshCache {
     frame: u32,
     /// Voxels with a smaller weight count as unobserved.
     min_weight: u16,
-    /// Blocks re-meshed since [`MeshCache::take_changed`], while followed.
-    changed: Option<Vec<IVec3>>,
 }
 
 /// Side of the gathered neighbourhood: voxels 0..=9 of a block.
@@ -154,7 +152,6 @@ impl MeshCache {
             pieces: KeyMap::default(),
             frame: 0,
             min_weight: min_weight.max(1),
-            changed: None,
         }
     }
 
@@ -162,20 +159,7 @@ impl MeshCache {
     /// changed block, and those of the seven blocks below it whose border
     /// with it changed; returns how many blocks were meshed.
     pub fn update(&mut self, volume: &TsdfVolume) -> usize {
-        let mut dirty: Vec<IVec3> = Vec::new();
-        for (block, changes) in volume.blocks().iter().zip(volume.changes()) {
-            for d in 0..8 {
-                if changes.affecting(d, self.min_weight) > self.frame {
-                    let below = block.key
-                        - IVec3::new(d as i32 & 1, (d as i32 >> 1) & 1, (d as i32 >> 2) & 1);
-                    if volume.index().contains_key(&below) {
-                        dirty.push(below);
-                    }
-                }
-            }
-        }
-        dirty.sort_unstable_by_key(|k| (k.x, k.y, k.z));
-        dirty.dedup();
+        let dirty = changed_since(volume, self.frame, self.min_weight);
         let min_weight = self.min_weight;
         let pieces: Vec<(IVec3, BlockMesh)> = dirty
             .par_iter()
@@ -185,49 +169,7 @@ impl MeshCache {
             self.pieces.insert(key, piece);
         }
         self.frame = volume.frames();
-        if let Some(changed) = &mut self.changed {
-            changed.extend_from_slice(&dirty);
-        }
         dirty.len()
-    }
-
-    /// Starts noting which blocks are re-meshed (for viewers that keep a
-    /// copy); returns every block that has a piece now.
-    pub fn follow(&mut self) -> Vec<IVec3> {
-        self.changed = Some(Vec::new());
-        sorted_keys(&self.pieces)
-    }
-
-    /// The blocks re-meshed since the last call (or [`MeshCache::follow`]),
-    /// sorted; empty when not followed. Blocks that left (evicted) are not
-    /// among them: their triangles stay part of the map.
-    pub fn take_changed(&mut self) -> Vec<IVec3> {
-        let mut keys = self
-            .changed
-            .as_mut()
-            .map(std::mem::take)
-            .unwrap_or_default();
-        keys.sort_unstable_by_key(|k| (k.x, k.y, k.z));
-        keys.dedup();
-        keys.retain(|k| self.pieces.contains_key(k));
-        keys
-    }
-
-    /// The triangles of the cubes block `key` owns, with the vertices they
-    /// use (some owned by the blocks above): the block's share of
-    /// [`MeshCache::assemble`]; `None` for a block without a piece (never
-    /// meshed, or evicted).
-    pub fn block_mesh(&self, key: IVec3) -> Option<Mesh> {
-        if !self.pieces.contains_key(&key) {
-            return None;
-        }
-        let owners: Vec<IVec3> = (0..8)
-            .map(|d| key + IVec3::new(d & 1, (d >> 1) & 1, (d >> 2) & 1))
-            .filter(|k| self.pieces.contains_key(k))
-            .collect();
-        let mut mesh = join(&self.pieces, &owners, &[key]);
-        mesh.remove_unreferenced_vertices();
-        Some(mesh)
     }
 
     /// The whole mesh: the blocks' pieces joined, in block-key order.
@@ -257,11 +199,64 @@ impl MeshCache {
     }
 }
 
+/// The blocks whose piece of the mesh may differ from what it was after
+/// frame `since` (see [`MeshCache::update`]): a changed block, and those of
+/// the seven blocks below it whose border with it changed; sorted.
+pub fn changed_since(volume: &TsdfVolume, since: u32, min_weight: u16) -> Vec<IVec3> {
+    let mut dirty: Vec<IVec3> = Vec::new();
+    for (block, changes) in volume.blocks().iter().zip(volume.changes()) {
+        for d in 0..8 {
+            if changes.affecting(d, min_weight.max(1)) > since {
+                let below =
+                    block.key - IVec3::new(d as i32 & 1, (d as i32 >> 1) & 1, (d as i32 >> 2) & 1);
+                if volume.index().contains_key(&below) {
+                    dirty.push(below);
+                }
+            }
+        }
+    }
+    dirty.sort_unstable_by_key(|k| (k.x, k.y, k.z));
+    dirty.dedup();
+    dirty
+}
+
 /// The triangles of the cubes the blocks `keys` own, meshed afresh from the
 /// volume (with the blocks above them, which own some of their vertices),
 /// with only the vertices they use: exactly what a full extraction holds
 /// for these blocks.
 pub fn extract_blocks(volume: &TsdfVolume, keys: &[IVec3], min_weight: u16) -> Mesh {
+    let (pieces, owners) = mesh_owners(volume, keys, min_weight);
+    let mut mesh = join(&pieces, &owners, keys);
+    mesh.remove_unreferenced_vertices();
+    mesh
+}
+
+/// Like [`extract_blocks`], block by block: the triangles each block of
+/// `keys` owns, or `None` for a block the volume does not hold.
+pub fn extract_each(volume: &TsdfVolume, keys: &[IVec3], min_weight: u16) -> Vec<Option<Mesh>> {
+    let (pieces, _) = mesh_owners(volume, keys, min_weight);
+    keys.par_iter()
+        .map(|&key| {
+            volume.index().contains_key(&key).then(|| {
+                let owners: Vec<IVec3> = (0..8)
+                    .map(|d| key + IVec3::new(d & 1, (d >> 1) & 1, (d >> 2) & 1))
+                    .filter(|k| pieces.contains_key(k))
+                    .collect();
+                let mut mesh = join(&pieces, &owners, &[key]);
+                mesh.remove_unreferenced_vertices();
+                mesh
+            })
+        })
+        .collect()
+}
+
+/// Meshes the blocks `keys` and those above them that own vertices of
+/// theirs; the pieces, and the owners in key order.
+fn mesh_owners(
+    volume: &TsdfVolume,
+    keys: &[IVec3],
+    min_weight: u16,
+) -> (KeyMap<BlockMesh>, Vec<IVec3>) {
     let mut owners: Vec<IVec3> = keys
         .iter()
         .flat_map(|&k| (0..8).map(move |d| k + IVec3::new(d & 1, (d >> 1) & 1, (d >> 2) & 1)))
@@ -273,9 +268,7 @@ pub fn extract_blocks(volume: &TsdfVolume, keys: &[IVec3], min_weight: u16) -> M
         .par_iter()
         .map(|&key| (key, mesh_block(volume, key, min_weight.max(1))))
         .collect();
-    let mut mesh = join(&pieces, &owners, keys);
-    mesh.remove_unreferenced_vertices();
-    mesh
+    (pieces, owners)
 }
 
 fn sorted_keys<V>(map: &KeyMap<V>) -> Vec<IVec3> {
