@@ -10,13 +10,16 @@
 #      time to show every triangle and its drawing rate while orbiting;
 #      a screenshot is written to docs/view-kitchen.png.
 #
-# Usage: bench/view_kitchen.sh [FRAMES] [ROUNDS]   (defaults 300, 2)
+# Usage: bench/view_kitchen.sh [FRAMES] [ROUNDS] [VOXEL] [RATE]
+#   (defaults 300, 2, 0.01 m, max: as fast as the server maps; 30 is the sensor's pace)
 # Needs ../shared beside the repository (or DEPTHMESH_SHARED), npm, and
 # chromium with chromedriver (.ci/browser installs them). Loopback only.
 set -euo pipefail
 cd "$(dirname "$0")/.."
 frames=${1:-300}
 rounds=${2:-2}
+voxel=${3:-0.01}
+rate=${4:-max}
 shared=$(realpath -m "${DEPTHMESH_SHARED:-../shared}")
 data=$shared/data/7scenes-redkitchen
 if [[ ! -d $data ]]; then
@@ -33,7 +36,7 @@ cleanup() {
 }
 trap cleanup EXIT
 "$bin" serve --bind 127.0.0.1:0 --token bench --out "$work/server" --max-sessions 4 \
-  --idle-timeout 600 >"$work/serve.out" 2>/dev/null &
+  --voxel "$voxel" --idle-timeout 600 >"$work/serve.out" 2>/dev/null &
 server=$!
 for _ in $(seq 50); do [[ -s $work/serve.out ]] && break; sleep 0.1; done
 url=$(head -1 "$work/serve.out" | sed 's/^listening on //')
@@ -44,7 +47,7 @@ listed() {
 run() { # run NAME VIEWERS
   local name=$1 viewers=$2 pids=()
   timeout "$limit" "$bin" stream "$data" --server "$url" --token bench --frames "0..$frames" \
-    --rate max --session "$name" --quiet --out "$work/client-$name" &
+    --rate "$rate" --session "$name" --quiet --out "$work/client-$name" &
   local stream=$!
   if ((viewers > 0)); then
     for _ in $(seq 200); do listed "$name" && break; sleep 0.05; done
@@ -82,7 +85,7 @@ print(f"three viewers / none: {ratio:.3f} ({(1 - ratio) * 100:+.1f} % slower)")
 w = [load(p) for p in sorted(glob.glob(f"{work}/watch-three-1-*.json"))]
 s = load(f"{work}/server/three-1/summary.json")
 size = lambda n: os.path.getsize(f"{work}/{n}")
-print(f"kitchen {frames} frames at 1 cm: {s['triangles']} triangles, {s['vertices']} vertices")
+print(f"kitchen {frames} frames, voxel {s['voxel']:.3f} m: {s['triangles']} triangles, {s['vertices']} vertices")
 for i, x in enumerate(w, 1):
     assert x["ended"] and x["triangles"] == s["triangles"], x
     print(f"viewer {i}: {x['bytes']} bytes in {x['part_messages']} part messages, ends holding {x['triangles']} triangles in {x['parts']} parts")

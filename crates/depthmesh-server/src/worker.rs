@@ -150,8 +150,13 @@ impl Worker {
                         mapped += 1;
                         let index = verdict.frame;
                         let _ = out.send(Out::Verdict(verdict));
-                        self.feed
-                            .after_frame(&mut self.session, &buffers.depth, self.bytes_in);
+                        let busy = inbox.waiting_frames() > 0;
+                        self.feed.after_frame(
+                            &mut self.session,
+                            &buffers.depth,
+                            self.bytes_in,
+                            busy,
+                        );
                         let due = self.status_every > 0 && mapped.is_multiple_of(self.status_every);
                         if let (true, Some(pose)) = (due, pose) {
                             buffers
@@ -172,7 +177,7 @@ impl Worker {
                 }
                 Job::Publish => {
                     self.feed
-                        .after_frame(&mut self.session, &buffers.depth, self.bytes_in);
+                        .after_frame(&mut self.session, &buffers.depth, self.bytes_in, false);
                 }
                 Job::End => break,
             }
@@ -182,12 +187,13 @@ impl Worker {
         if let Some(m) = fatal.as_ref().or(finished.as_ref().err()) {
             ended.insert("error".into(), m.clone().into());
         }
-        self.feed.finish(&mut self.session, &ended);
+        // The client first: its viewers' last versions need not delay it.
         let _ = out.send(match (fatal, finished) {
             (Some(m), _) => Out::Fatal(m),
             (None, Ok(summary)) => Out::Finished(summary),
             (None, Err(m)) => Out::Fatal(m),
         });
+        self.feed.finish(&mut self.session, &ended);
     }
 
     /// Decodes and maps one frame; an error ends the session.

@@ -105,28 +105,29 @@ function readPart(buffer) {
   const vertices = view.getUint32(20, true);
   const indices = view.getUint32(24, true);
   if (vertices === 0) return { key, triangles: 0 };
-  const origin = [view.getFloat32(28, true), view.getFloat32(32, true), view.getFloat32(36, true)];
+  const origin = [view.getInt32(28, true), view.getInt32(32, true), view.getInt32(36, true)];
   const step = view.getFloat32(40, true);
   const vertexBytes = view.getUint32(44, true);
-  const raw = new Uint8Array(vertices * 16);
-  MeshoptDecoder.decodeVertexBuffer(raw, vertices, 16, new Uint8Array(buffer, 48, vertexBytes));
+  const raw = new Uint8Array(vertices * 12);
+  MeshoptDecoder.decodeVertexBuffer(raw, vertices, 12, new Uint8Array(buffer, 48, vertexBytes));
   const index = new Uint32Array(indices);
   MeshoptDecoder.decodeIndexBuffer(new Uint8Array(index.buffer), indices, 4,
     new Uint8Array(buffer, 48 + vertexBytes));
   const q = new Uint16Array(raw.buffer);
-  const s = new Int8Array(raw.buffer);
-  const position = new Float32Array(vertices * 3);
-  const normal = flags & 1 ? new Float32Array(vertices * 3) : null;
-  const color = flags & 2 ? new Uint8Array(vertices * 3) : null;
+  // Grid coordinates (quanta): where parts share a vertex, they agree.
+  const grid = new Int32Array(vertices * 3);
+  const color = flags & 1 ? new Uint8Array(vertices * 3) : null;
   for (let v = 0; v < vertices; v++) {
     for (let c = 0; c < 3; c++) {
-      position[3 * v + c] = origin[c] + q[8 * v + c] * step;
-      if (normal) normal[3 * v + c] = s[16 * v + 8 + c] / 127;
-      if (color) color[3 * v + c] = raw[16 * v + 12 + c];
+      grid[3 * v + c] = origin[c] + q[6 * v + c];
+      if (color) color[3 * v + c] = raw[12 * v + 8 + c];
     }
   }
-  return { key, position, normal, color, index, triangles: indices / 3 };
+  return { key, step, grid, color, index, triangles: indices / 3 };
 }
+
+/** Largest grid span (quanta per axis) a group's vertices are joined over. */
+const JOIN_SPAN = 1 << 17;
 
 /** A session's view: the map, the sensor, the figures. */
 class View {
@@ -166,7 +167,8 @@ class View {
 
   setupScene() {
     const host = $('canvas');
-    this.renderer = new WebGLRenderer({ antialias: true, preserveDrawingBuffer: true });
+    // No multisampling: on a software GL it would cost most of the frame.
+    this.renderer = new WebGLRenderer({ antialias: false });
     this.renderer.setPixelRatio(window.devicePixelRatio);
     host.append(this.renderer.domElement);
     this.scene = new Scene();
@@ -293,29 +295,55 @@ class View {
     if (!this.framed && this.parts.size > 0 && !this.follow) this.frameAll();
   }
 
+  /**
+   * One mesh of a group's parts. Vertices the parts share (the same grid
+   * point) are joined, so normals computed from the triangles are smooth
+   * across the parts' borders.
+   */
   groupMesh(parts) {
     let vertices = 0; let indices = 0;
-    for (const p of parts) { vertices += p.position.length / 3; indices += p.index.length; }
-    const position = new Float32Array(vertices * 3);
-    const withNormals = parts.every((p) => p.normal);
+    const low = [Infinity, Infinity, Infinity]; const high = [-Infinity, -Infinity, -Infinity];
+    for (const p of parts) {
+      vertices += p.grid.length / 3; indices += p.index.length;
+      for (let i = 0; i < p.grid.length; i++) {
+        low[i % 3] = Math.min(low[i % 3], p.grid[i]);
+        high[i % 3] = Math.max(high[i % 3], p.grid[i]);
+      }
+    }
+    const step = parts[0].step;
+    const join = parts.every((p) => p.step === step)
+      && high.every((h, c) => h - low[c] < JOIN_SPAN);
     const withColours = parts.every((p) => p.color);
-    const normal = withNormals ? new Float32Array(vertices * 3) : null;
+    const position = new Float32Array(vertices * 3);
     const color = withColours ? new Uint8Array(vertices * 3) : null;
     const index = new Uint32Array(indices);
-    let v = 0; let i = 0;
+    const seen = new Map();
+    let n = 0; let i = 0;
     for (const p of parts) {
-      position.set(p.position, v * 3);
-      if (normal) normal.set(p.normal, v * 3);
-      if (color) color.set(p.color, v * 3);
-      for (let j = 0; j < p.index.length; j++) index[i + j] = p.index[j] + v;
-      v += p.position.length / 3; i += p.index.length;
+      const count = p.grid.length / 3;
+      const local = new Uint32Array(count);
+      for (let v = 0; v < count; v++) {
+        const x = p.grid[3 * v]; const y = p.grid[3 * v + 1]; const z = p.grid[3 * v + 2];
+        let at;
+        if (join) {
+          const k = ((x - low[0]) * JOIN_SPAN + (y - low[1])) * JOIN_SPAN + (z - low[2]);
+          at = seen.get(k);
+          if (at === undefined) { at = n++; seen.set(k, at); } else { local[v] = at; continue; }
+        } else {
+          at = n++;
+        }
+        local[v] = at;
+        position[3 * at] = x * p.step; position[3 * at + 1] = y * p.step; position[3 * at + 2] = z * p.step;
+        if (color) color.set(p.color.subarray(3 * v, 3 * v + 3), 3 * at);
+      }
+      for (let j = 0; j < p.index.length; j++) index[i + j] = local[p.index[j]];
+      i += p.index.length;
     }
     const g = new BufferGeometry();
-    g.setAttribute('position', new BufferAttribute(position, 3));
-    if (normal) g.setAttribute('normal', new BufferAttribute(normal, 3));
-    else g.computeVertexNormals();
-    if (color) g.setAttribute('color', new BufferAttribute(color, 3, true));
+    g.setAttribute('position', new BufferAttribute(position.slice(0, 3 * n), 3));
+    if (color) g.setAttribute('color', new BufferAttribute(color.slice(0, 3 * n), 3, true));
     g.setIndex(new BufferAttribute(index, 1));
+    g.computeVertexNormals();
     g.computeBoundingSphere();
     return new Mesh(g, color ? this.coloured : this.shaded);
   }
@@ -387,6 +415,7 @@ class View {
     const img = kind === 0 ? $('status') : $('depth');
     const old = img.src;
     img.src = URL.createObjectURL(new Blob([jpeg], { type: 'image/jpeg' }));
+    img.hidden = false;
     if (old.startsWith('blob:')) URL.revokeObjectURL(old);
   }
 

@@ -27,6 +27,9 @@ use std::time::{Duration, Instant};
 
 /// Shortest time between two publications: five a second look live.
 pub const TICK: Duration = Duration::from_millis(200);
+/// Shortest time between two publications while frames wait to be mapped:
+/// the view then updates less often rather than slow the mapping down.
+pub const BUSY_TICK: Duration = Duration::from_millis(1000);
 /// A part is first sent once it has existed this long: at the edge of the
 /// view new surface grows over several frames, and one version of it
 /// costs less than several (the map on the page lags the sensor by this
@@ -36,7 +39,7 @@ pub const FIRST_DELAY: Duration = Duration::from_millis(1000);
 /// version to go out before the session ends.
 pub const GROWTH: f32 = 0.1;
 /// Wait before a part's second version is sent.
-pub const FIRST_WAIT: Duration = Duration::from_millis(500);
+pub const FIRST_WAIT: Duration = Duration::from_millis(1000);
 /// Longest wait between versions of a part.
 pub const LAST_WAIT: Duration = Duration::from_secs(8);
 
@@ -45,7 +48,7 @@ const DEPTH_COLOURS: (f32, f32) = (0.3, 4.0);
 
 /// Shortest time between two images: ray casting the status image is the
 /// dearest part of a publication.
-pub const IMAGE_TICK: Duration = Duration::from_millis(500);
+pub const IMAGE_TICK: Duration = Duration::from_millis(1000);
 
 /// How far a part's vertices may have moved, metres, before its new
 /// version is worth sending when its triangles are the same: a surface seen
@@ -105,14 +108,22 @@ impl Feed {
     }
 
     /// After a frame (or when a viewer joined): publishes if viewers are
-    /// watching and a tick has passed. `depth` is the latest frame's depth;
-    /// `bytes_in` what the sensor sent so far.
-    pub fn after_frame(&mut self, session: &mut Session, depth: &DepthImage, bytes_in: u64) {
+    /// watching and a tick has passed ([`BUSY_TICK`] when `busy`: frames
+    /// are waiting). `depth` is the latest frame's depth; `bytes_in` what
+    /// the sensor sent so far.
+    pub fn after_frame(
+        &mut self,
+        session: &mut Session,
+        depth: &DepthImage,
+        bytes_in: u64,
+        busy: bool,
+    ) {
         if !self.hub.watched() {
             return;
         }
         let now = Instant::now();
-        if self.last.is_some_and(|t| now - t < TICK) {
+        let tick = if busy { BUSY_TICK } else { TICK };
+        if self.last.is_some_and(|t| now - t < tick) {
             return;
         }
         let parts = self.changed_parts(session, now, false);

@@ -6,17 +6,21 @@
 //! |---|---|
 //! | 0 | magic `DMV1` |
 //! | 4 | key, 3 × i32 |
-//! | 16 | flags, u32: bit 0 normals, bit 1 colours |
+//! | 16 | flags, u32: bit 0 colours |
 //! | 20 | vertices, u32 (0: the part is gone) |
 //! | 24 | indices, u32 (3 per triangle) |
-//! | 28 | origin, 3 × f32 (metres) |
+//! | 28 | origin, 3 × i32, in quanta |
 //! | 40 | step, f32 (metres per quantum) |
 //! | 44 | bytes of the encoded vertices, u32 |
 //! | 48 | vertices, meshoptimizer's vertex codec; then indices, its index codec, to the end |
 //!
-//! A vertex is 16 bytes: its position as 3 × u16 quanta from `origin`
-//! (and 2 bytes of padding), its normal as 3 × i8 (·127), its colour as
-//! RGB. meshoptimizer's codecs (the ones glTF's `EXT_meshopt_compression`
+//! A vertex is 12 bytes: its position as 3 × u16 quanta from `origin`
+//! (and 2 bytes of padding), at `(origin + q) · step` metres, and its
+//! colour as RGB(A). Positions lie on one grid for every part with the same
+//! step, so the page finds a vertex that two parts share by its quanta and
+//! joins them; it computes normals from the joined triangles. Sending
+//! normals instead would cost a third of the bytes (measured on the
+//! kitchen), for shading a viewer cannot tell apart. meshoptimizer's codecs (the ones glTF's `EXT_meshopt_compression`
 //! uses; the page decodes them with meshoptimizer's own decoder) store
 //! each byte column as deltas, so padding and constant columns cost almost
 //! nothing. Vertices and triangles are first put in vertex-cache order
@@ -45,35 +49,31 @@ const FINEST_STEP: f32 = 1.0 / 2048.0;
 #[derive(Clone, Copy, Debug, Default)]
 struct WireVertex {
     position: [u16; 4],
-    normal: [i8; 4],
     color: [u8; 4],
 }
 
 /// The message for part `key` with triangles `mesh` (none: the part is gone).
 pub fn encode_part(key: PartKey, mesh: &Mesh) -> Vec<u8> {
     let bounds = mesh.bounds();
-    let (origin, step) = if mesh.triangles.is_empty() {
-        (glam::Vec3::ZERO, FINEST_STEP)
+    let step = if mesh.triangles.is_empty() {
+        FINEST_STEP
     } else {
-        (
-            bounds.min,
-            (bounds.extent().max_element() / f32::from(u16::MAX)).max(FINEST_STEP),
-        )
+        (bounds.extent().max_element() / f32::from(u16::MAX - 1)).max(FINEST_STEP)
     };
-    let normals = mesh.normals.len() == mesh.positions.len() && !mesh.positions.is_empty();
+    // The grid point at or below the part's lowest corner.
+    let origin = if mesh.triangles.is_empty() {
+        glam::IVec3::ZERO
+    } else {
+        (bounds.min / step).floor().as_ivec3()
+    };
     let colors = mesh.colors.len() == mesh.positions.len() && !mesh.positions.is_empty();
     let vertices: Vec<WireVertex> = (0..mesh.positions.len())
         .map(|i| {
-            let q = ((mesh.positions[i] - origin) / step).round();
-            let n = if normals {
-                (mesh.normals[i] * 127.0).round()
-            } else {
-                glam::Vec3::ZERO
-            };
+            let q = ((mesh.positions[i] / step).round().as_ivec3() - origin)
+                .clamp(glam::IVec3::ZERO, glam::IVec3::splat(i32::from(u16::MAX)));
             let c = if colors { mesh.colors[i] } else { [0; 3] };
             WireVertex {
                 position: [q.x as u16, q.y as u16, q.z as u16, 0],
-                normal: [n.x as i8, n.y as i8, n.z as i8, 0],
                 color: [c[0], c[1], c[2], 255],
             }
         })
@@ -95,13 +95,13 @@ pub fn encode_part(key: PartKey, mesh: &Mesh) -> Vec<u8> {
     for k in key {
         out.extend_from_slice(&k.to_le_bytes());
     }
-    let flags = u32::from(normals) | u32::from(colors) << 1;
-    for v in [flags, vertex_count as u32, flat.len() as u32] {
+    for v in [u32::from(colors), vertex_count as u32, flat.len() as u32] {
         out.extend_from_slice(&v.to_le_bytes());
     }
-    for v in [origin.x, origin.y, origin.z, step] {
+    for v in origin.to_array() {
         out.extend_from_slice(&v.to_le_bytes());
     }
+    out.extend_from_slice(&step.to_le_bytes());
     out.extend_from_slice(&(vertex_bytes.len() as u32).to_le_bytes());
     out.extend_from_slice(&vertex_bytes);
     out.extend_from_slice(&index_bytes);
@@ -124,7 +124,7 @@ mod tests {
 
     /// Decodes a part message: origin, step, and each triangle's corners
     /// in quanta, sorted (the encoder reorders triangles and corners).
-    fn decode(message: &[u8]) -> (Vec3, f32, Vec<[[u16; 3]; 3]>) {
+    fn decode(message: &[u8]) -> (glam::IVec3, f32, Vec<[[u16; 3]; 3]>) {
         let u32_at = |o: usize| u32::from_le_bytes(message[o..o + 4].try_into().unwrap());
         let f32_at = |o: usize| f32::from_le_bytes(message[o..o + 4].try_into().unwrap());
         assert_eq!(&message[..4], PART_MAGIC);
@@ -141,7 +141,8 @@ mod tests {
             .chunks(3)
             .map(|t| sorted([corner(t[0]), corner(t[1]), corner(t[2])]))
             .collect();
-        let origin = Vec3::new(f32_at(28), f32_at(32), f32_at(36));
+        let i32_at = |o: usize| i32::from_le_bytes(message[o..o + 4].try_into().unwrap());
+        let origin = glam::IVec3::new(i32_at(28), i32_at(32), i32_at(36));
         (origin, f32_at(40), triangles)
     }
 
@@ -164,9 +165,10 @@ mod tests {
             "a part under 32 m across gets the finest step"
         );
         let quantum = |p: Vec3| {
-            let q = ((p - origin) / step).round();
-            // Every position is within half a quantum of its quantised self.
-            assert!((origin + q * step - p).abs().max_element() <= 0.5 * step + 1e-6);
+            let q = (p / step).round();
+            // Every position is within half a quantum of its grid point.
+            assert!((q * step - p).abs().max_element() <= 0.5 * step + 1e-6);
+            let q = q.as_ivec3() - origin;
             [q.x as u16, q.y as u16, q.z as u16]
         };
         let mut expected: Vec<[[u16; 3]; 3]> = (0..mesh.triangle_count())
