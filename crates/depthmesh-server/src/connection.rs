@@ -304,16 +304,11 @@ fn open(shared: &Shared, text: &str) -> Result<Opened, String> {
 }
 
 /// What a viewer is told of a session first: its back-end, its camera,
-/// and how the page should group the map's parts into drawn meshes (by
-/// their keys shifted right this many bits: a few hundred draw calls for a
-/// room).
+/// and how the page should group the map's parts into drawn meshes (see
+/// [`Session::part_group_bits`]).
 fn view_info(name: &str, session: &Session) -> serde_json::Value {
     let map = session.backend().mapper().name();
-    let group_bits = match map {
-        "tsdf" | "mabdi" => 3,
-        "planes" => 2,
-        _ => 0,
-    };
+    let group_bits = session.part_group_bits();
     let k = session.config().intrinsics;
     serde_json::json!({
         "session": name,

@@ -7,7 +7,7 @@
 //!
 //! | back-end | part | key |
 //! |---|---|---|
-//! | TSDF | the triangles of the cubes one block owns (see [`crate::tsdf::mesh`]) | block coordinates |
+//! | TSDF | the triangles of the cubes 2³ blocks own (see [`crate::tsdf::mesh`]; one block with an active radius) | block coordinates ÷ 2 |
 //! | voxel planes | the patches of a group of [`WINDOW_GROUP`]³ windows | group coordinates |
 //! | MABDI | a patch: one iteration's novel surface, as removal and simplification left it | `[patch, 0, 0]` |
 //! | traditional | runs of [`RUN`] triangles (it only appends) | `[run, 0, 0]` |
@@ -33,7 +33,7 @@ impl Session {
     /// again starts over.
     pub fn follow_parts(&mut self) -> Vec<PartKey> {
         match &mut self.backend {
-            Backend::Tsdf(t) => to_keys(t.follow_blocks()),
+            Backend::Tsdf(t) => to_keys(t.follow_parts()),
             Backend::Planes(p) => to_keys(p.follow_groups()),
             Backend::Mabdi(m) => to_ids(m.follow_patches()),
             Backend::Naive(n) => {
@@ -44,11 +44,23 @@ impl Session {
         }
     }
 
+    /// How many low bits of its parts' keys a viewer may drop to gather
+    /// parts into drawn meshes about 64 cm (TSDF at 1 cm), eight patches
+    /// (MABDI) or 32 plane windows across: a few hundred draw calls for a room.
+    pub fn part_group_bits(&self) -> u32 {
+        match &self.backend {
+            Backend::Tsdf(t) => 3 - t.part_blocks().trailing_zeros(),
+            Backend::Mabdi(_) => 3,
+            Backend::Planes(_) => 2,
+            Backend::Naive(_) => 0,
+        }
+    }
+
     /// The parts changed since the last call (or [`Session::follow_parts`]);
     /// empty while not followed.
     pub fn changed_parts(&mut self) -> Vec<PartKey> {
         match &mut self.backend {
-            Backend::Tsdf(t) => to_keys(t.changed_blocks()),
+            Backend::Tsdf(t) => to_keys(t.changed_parts()),
             Backend::Planes(p) => to_keys(p.changed_groups()),
             Backend::Mabdi(m) => to_ids(m.changed_patches()),
             Backend::Naive(n) => {
@@ -68,8 +80,8 @@ impl Session {
     pub fn part_meshes(&self, keys: &[PartKey]) -> Vec<Option<Mesh>> {
         match &self.backend {
             Backend::Tsdf(t) => {
-                let blocks: Vec<IVec3> = keys.iter().map(|&k| k.into()).collect();
-                t.block_meshes(&blocks)
+                let parts: Vec<IVec3> = keys.iter().map(|&k| k.into()).collect();
+                t.part_meshes(&parts)
             }
             Backend::Planes(p) => {
                 let groups: Vec<IVec3> = keys.iter().map(|&k| k.into()).collect();

@@ -3,7 +3,7 @@
 //! an active region hand out the mesh of blocks left behind.
 
 use super::evict::ActiveRegion;
-use super::mesh::{changed_since, extract_each, MeshCache};
+use super::mesh::{changed_since, extract_sets, MeshCache};
 use super::raycast::RaycastImage;
 use super::{TsdfConfig, TsdfVolume};
 use crate::camera::{Intrinsics, Pose};
@@ -125,33 +125,73 @@ impl TsdfMapper {
         }
     }
 
-    /// Starts noting changed blocks for a viewer; returns every block the
-    /// volume holds (those without surface have an empty mesh).
-    pub fn follow_blocks(&mut self) -> Vec<IVec3> {
-        self.view_frame = Some(self.volume.frames());
-        let mut keys: Vec<IVec3> = self.volume.blocks().iter().map(|b| b.key).collect();
-        keys.sort_unstable_by_key(|k| (k.x, k.y, k.z));
-        keys
+    /// Blocks per side of a viewer's part: 2 (a part of 2³ blocks carries
+    /// its codecs' fixed costs once for eight blocks), or 1 with an active
+    /// radius (a part must be held whole or not at all: a block written out
+    /// would otherwise vanish from a viewer's copy when its neighbours change).
+    pub fn part_blocks(&self) -> i32 {
+        if self.active.is_some() {
+            1
+        } else {
+            2
+        }
     }
 
-    /// The blocks whose mesh may have changed since the last call (or
-    /// [`TsdfMapper::follow_blocks`]); empty while not followed. Nothing is
+    /// The viewer's part holding block `key`.
+    fn part_of(&self, key: IVec3) -> IVec3 {
+        key.div_euclid(IVec3::splat(self.part_blocks()))
+    }
+
+    /// Starts noting changed parts for a viewer (see
+    /// [`TsdfMapper::part_blocks`]); returns every part the volume holds
+    /// blocks of (those without surface have an empty mesh).
+    pub fn follow_parts(&mut self) -> Vec<IVec3> {
+        self.view_frame = Some(self.volume.frames());
+        let keys: Vec<IVec3> = self.volume.blocks().iter().map(|b| b.key).collect();
+        self.parts_of(keys)
+    }
+
+    /// The parts whose mesh may have changed since the last call (or
+    /// [`TsdfMapper::follow_parts`]); empty while not followed. Nothing is
     /// meshed: a viewer meshes only what it sends
-    /// ([`TsdfMapper::block_meshes`]), so following costs the mapping
+    /// ([`TsdfMapper::part_meshes`]), so following costs the mapping
     /// nothing between sends.
-    pub fn changed_blocks(&mut self) -> Vec<IVec3> {
+    pub fn changed_parts(&mut self) -> Vec<IVec3> {
         let Some(since) = self.view_frame else {
             return Vec::new();
         };
         self.view_frame = Some(self.volume.frames());
-        changed_since(&self.volume, since, self.cache.min_weight())
+        let keys = changed_since(&self.volume, since, self.cache.min_weight());
+        self.parts_of(keys)
     }
 
-    /// The triangles each block of `keys` owns now, meshed from the volume
-    /// (what the assembled mesh holds for it); `None` for a block not held
-    /// (evicted by bounded memory: its triangles stay part of the map).
-    pub fn block_meshes(&self, keys: &[IVec3]) -> Vec<Option<Mesh>> {
-        extract_each(&self.volume, keys, self.cache.min_weight())
+    fn parts_of(&self, keys: Vec<IVec3>) -> Vec<IVec3> {
+        let mut parts: Vec<IVec3> = keys.into_iter().map(|k| self.part_of(k)).collect();
+        parts.sort_unstable_by_key(|k| (k.x, k.y, k.z));
+        parts.dedup();
+        parts
+    }
+
+    /// The triangles the blocks of each part own now, meshed from the
+    /// volume (what the assembled mesh holds for them); `None` for a part
+    /// none of whose blocks is held (evicted by bounded memory: its
+    /// triangles stay part of the map).
+    pub fn part_meshes(&self, parts: &[IVec3]) -> Vec<Option<Mesh>> {
+        let n = self.part_blocks();
+        let sets: Vec<Vec<IVec3>> = parts
+            .iter()
+            .map(|&part| {
+                (0..n * n * n)
+                    .map(|i| part * n + IVec3::new(i % n, (i / n) % n, i / (n * n)))
+                    .filter(|k| self.volume.index().contains_key(k))
+                    .collect()
+            })
+            .collect();
+        let meshes = extract_sets(&self.volume, &sets, self.cache.min_weight());
+        sets.iter()
+            .zip(meshes)
+            .map(|(blocks, mesh)| (!blocks.is_empty()).then_some(mesh))
+            .collect()
     }
 
     /// Ray casts the volume from `pose` (depth, points, normals).

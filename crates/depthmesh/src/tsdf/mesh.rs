@@ -231,21 +231,26 @@ pub fn extract_blocks(volume: &TsdfVolume, keys: &[IVec3], min_weight: u16) -> M
     mesh
 }
 
-/// Like [`extract_blocks`], block by block: the triangles each block of
-/// `keys` owns, or `None` for a block the volume does not hold.
-pub fn extract_each(volume: &TsdfVolume, keys: &[IVec3], min_weight: u16) -> Vec<Option<Mesh>> {
-    let (pieces, _) = mesh_owners(volume, keys, min_weight);
-    keys.par_iter()
-        .map(|&key| {
-            volume.index().contains_key(&key).then(|| {
-                let owners: Vec<IVec3> = (0..8)
-                    .map(|d| key + IVec3::new(d & 1, (d >> 1) & 1, (d >> 2) & 1))
-                    .filter(|k| pieces.contains_key(k))
-                    .collect();
-                let mut mesh = join(&pieces, &owners, &[key]);
-                mesh.remove_unreferenced_vertices();
-                mesh
-            })
+/// Like [`extract_blocks`] for each set of blocks in `sets`, meshing every
+/// block once however many sets need it (neighbouring sets share the blocks
+/// above their borders).
+pub fn extract_sets(volume: &TsdfVolume, sets: &[Vec<IVec3>], min_weight: u16) -> Vec<Mesh> {
+    let all: Vec<IVec3> = sets.iter().flatten().copied().collect();
+    let (pieces, _) = mesh_owners(volume, &all, min_weight);
+    sets.par_iter()
+        .map(|keys| {
+            let mut owners: Vec<IVec3> = keys
+                .iter()
+                .flat_map(|&k| {
+                    (0..8).map(move |d| k + IVec3::new(d & 1, (d >> 1) & 1, (d >> 2) & 1))
+                })
+                .filter(|k| pieces.contains_key(k))
+                .collect();
+            owners.sort_unstable_by_key(|k| (k.x, k.y, k.z));
+            owners.dedup();
+            let mut mesh = join(&pieces, &owners, keys);
+            mesh.remove_unreferenced_vertices();
+            mesh
         })
         .collect()
 }
