@@ -15,30 +15,12 @@ cd "$(dirname "$0")/.."
 frames=${1:-150}
 max=${2:-4}
 maps=${3:-tsdf mabdi planes}
-shared=$(realpath -m "${DEPTHMESH_SHARED:-../shared}")
-data=$shared/data/7scenes-redkitchen
-if [[ ! -d $data ]]; then
-  echo "error: 7-Scenes frames not found in $data (set DEPTHMESH_SHARED)" >&2
-  exit 1
-fi
-cargo build --release --quiet
-bin=./target/release/depthmesh
-work=$(mktemp -d)
-server=
-cleanup() {
-  [[ -n $server ]] && kill "$server" 2>/dev/null && wait "$server" 2>/dev/null
-  rm -rf "$work"
-}
-trap cleanup EXIT
+source bench/serve_common.sh
 # A run may take at most this long (frames at 30/s, plus the final mesh).
 limit=$((frames / 30 + 120))
 printf '%-7s %7s %14s %14s %10s %12s %12s %10s\n' map clients mapped dropped "fps/client" "p50 ms" "p99 ms" "peak MB"
 for map in $maps; do
-  "$bin" serve --bind 127.0.0.1:0 --token bench --map "$map" --out "$work/server-$map" \
-    --max-sessions "$max" >"$work/serve.out" 2>/dev/null &
-  server=$!
-  for _ in $(seq 50); do [[ -s $work/serve.out ]] && break; sleep 0.1; done
-  url=$(head -1 "$work/serve.out" | sed 's/^listening on //')
+  start_server --map "$map" --out "$work/server-$map" --max-sessions "$max"
   for n in $(seq "$max"); do
     clients=()
     for i in $(seq "$n"); do
@@ -65,7 +47,5 @@ keeps = "keeps up" if dropped <= 0.01 * sent else ""
 print(f"{map_:<7} {n:>7} {mapped:>8}/{sent:<5} {dropped:>8} ({100*dropped/sent:3.0f}%) {fps:>10.1f} {p50:>12.1f} {p99:>12.1f} {peak/1024:>10.0f}  {keeps}")
 PY
   done
-  kill "$server"
-  wait "$server" 2>/dev/null || true
-  server=
+  stop_server
 done

@@ -8,7 +8,7 @@
 #      a meshopt-compressed GLB (gltfpack -c and -cc, pinned from npm).
 #   3. The page in headless Chromium (software GL) on the finished session:
 #      time to show every triangle and its drawing rate while orbiting;
-#      a screenshot is written to docs/view-kitchen.png.
+#      a screenshot is written to docs/view-kitchen.png (or $SCREENSHOT).
 #
 # Usage: bench/view_kitchen.sh [FRAMES] [ROUNDS] [VOXEL] [RATE]
 #   (defaults 300, 2, 0.01 m, max: as fast as the server maps; 30 is the sensor's pace)
@@ -20,26 +20,8 @@ frames=${1:-300}
 rounds=${2:-2}
 voxel=${3:-0.01}
 rate=${4:-max}
-shared=$(realpath -m "${DEPTHMESH_SHARED:-../shared}")
-data=$shared/data/7scenes-redkitchen
-if [[ ! -d $data ]]; then
-  echo "error: 7-Scenes frames not found in $data (set DEPTHMESH_SHARED)" >&2
-  exit 1
-fi
-cargo build --release --quiet
-bin=./target/release/depthmesh
-work=$(mktemp -d)
-server=
-cleanup() {
-  [[ -n $server ]] && kill "$server" 2>/dev/null && wait "$server" 2>/dev/null
-  rm -rf "$work"
-}
-trap cleanup EXIT
-"$bin" serve --bind 127.0.0.1:0 --token bench --out "$work/server" --max-sessions 4 \
-  --voxel "$voxel" --idle-timeout 600 >"$work/serve.out" 2>/dev/null &
-server=$!
-for _ in $(seq 50); do [[ -s $work/serve.out ]] && break; sleep 0.1; done
-url=$(head -1 "$work/serve.out" | sed 's/^listening on //')
+source bench/serve_common.sh
+start_server --out "$work/server" --max-sessions 4 --voxel "$voxel" --idle-timeout 600
 limit=$((frames + 300))
 listed() {
   curl -sf "$url/api/sessions?token=bench" | grep -q "\"name\":\"$1\""
@@ -70,8 +52,9 @@ gltfpack=$work/npm/node_modules/.bin/gltfpack
 "$gltfpack" -i "$work/final.glb" -o "$work/final-c.glb" -c >/dev/null
 "$gltfpack" -i "$work/final.glb" -o "$work/final-cc.glb" -cc >/dev/null
 triangles=$(python3 -c "import json; print(json.load(open('$work/server/three-1/summary.json'))['triangles'])")
-mkdir -p docs
-page=$(python3 bench/view_browser.py "$url/view/three-1#token=bench" "$triangles" docs/view-kitchen.png 10)
+shot=${SCREENSHOT:-docs/view-kitchen.png}
+mkdir -p "$(dirname "$shot")"
+page=$(python3 bench/view_browser.py "$url/view/three-1#token=bench" "$triangles" "$shot" 10)
 python3 - "$work" "$rounds" "$frames" "$page" <<'PY'
 import glob, json, os, statistics, sys
 work, rounds, frames, page = sys.argv[1], int(sys.argv[2]), sys.argv[3], json.loads(sys.argv[4])

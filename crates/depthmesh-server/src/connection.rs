@@ -314,6 +314,9 @@ fn view_info(name: &str, session: &Session) -> serde_json::Value {
         "session": name,
         "map": map,
         "group_bits": group_bits,
+        // Plane patches are unoriented, each with its own vertices: joining
+        // neighbours' shared corners would average opposite normals.
+        "join": map != "planes",
         "camera": {"width": k.width, "height": k.height, "fx": k.fx, "fy": k.fy, "cx": k.cx, "cy": k.cy},
     })
 }

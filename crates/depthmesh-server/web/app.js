@@ -142,6 +142,7 @@ class View {
     this.follow = true;
     this.framed = false;
     this.groupBits = 0;
+    this.joinVertices = true;
     this.trail = [];
     this.up = null;
   }
@@ -245,6 +246,7 @@ class View {
 
   info(m) {
     this.groupBits = m.group_bits;
+    this.joinVertices = m.join;
     this.intrinsics = m.camera;
     $('state').textContent = `${m.map} · live`;
     const k = m.camera; const z = 0.25;
@@ -311,7 +313,7 @@ class View {
       }
     }
     const step = parts[0].step;
-    const join = parts.every((p) => p.step === step)
+    const join = this.joinVertices && parts.every((p) => p.step === step)
       && high.every((h, c) => h - low[c] < JOIN_SPAN);
     const withColours = parts.every((p) => p.color);
     const position = new Float32Array(vertices * 3);
