@@ -11,7 +11,8 @@ use std::sync::atomic::{AtomicU64, Ordering};
 static SEQUENCE: AtomicU64 = AtomicU64::new(0);
 
 /// Writes `path` by running `f` on a buffered temporary file in the same
-/// directory, then renaming it over `path`.
+/// directory, syncing it, renaming it over `path` and syncing the directory,
+/// so that once this returns the new file survives a crash or power cut.
 ///
 /// The temporary file is hidden and named after the target and the process, so
 /// a crash leaves a recognisable leftover rather than a truncated target. On
@@ -57,7 +58,27 @@ where
     // cut would leave an empty file under the target's name.
     file.sync_all()?;
     drop(file);
-    std::fs::rename(temp, path)
+    std::fs::rename(temp, path)?;
+    sync_directory(path)
+}
+
+/// Makes the rename of `path` durable: a rename is an entry in the
+/// directory, which the file's own sync does not write, so without this a
+/// power cut soon after could leave the old file (or none) under the name.
+#[cfg(unix)]
+fn sync_directory(path: &Path) -> std::io::Result<()> {
+    let dir = match path.parent() {
+        Some(d) if !d.as_os_str().is_empty() => d,
+        _ => Path::new("."),
+    };
+    File::open(dir)?.sync_all()
+}
+
+/// Elsewhere a directory cannot be opened to be synced; the rename stands
+/// as the file system makes it durable.
+#[cfg(not(unix))]
+fn sync_directory(_path: &Path) -> std::io::Result<()> {
+    Ok(())
 }
 
 /// Scratch directories for tests, removed when dropped.
