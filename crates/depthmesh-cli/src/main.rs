@@ -7,6 +7,7 @@ mod demo;
 mod draw;
 mod eval;
 mod export;
+mod info;
 mod map_args;
 mod memory;
 mod out_dir;
@@ -18,6 +19,7 @@ mod serve;
 mod simplify;
 mod simulate;
 mod status;
+mod store;
 mod stream;
 mod study;
 mod views;
@@ -61,6 +63,8 @@ enum Command {
     Stream(stream::StreamArgs),
     /// Follow a session's view without a browser and print what arrived (JSON).
     Watch(watch::WatchArgs),
+    /// What a map store holds: frames, blocks, bytes, last checkpoint, settings (JSON).
+    Info(info::InfoArgs),
     /// Simplify a mesh file by quadric edge collapse.
     Simplify(simplify::SimplifyArgs),
     /// Write a mesh as game-engine assets: chunked GLB, OBJ or PLY.
@@ -79,6 +83,7 @@ fn main() -> ExitCode {
         Command::Serve(args) => serve::run(&args),
         Command::Stream(args) => stream::run(&args, cli.quiet),
         Command::Watch(args) => watch::run(&args),
+        Command::Info(args) => info::run(&args),
         Command::Simplify(args) => simplify::run(&args, cli.quiet),
         Command::Export(args) => export::run(&args, cli.quiet),
     };

@@ -9,11 +9,12 @@ use crate::out_dir::OutDir;
 use crate::progress;
 use crate::run::{conclude, report_event};
 use crate::status::StatusWriter;
+use crate::store::StoreArgs;
 use anyhow::{bail, Context, Result};
 use clap::Args;
 use depthmesh::dataset::{Dataset, DatasetOptions};
 use depthmesh::session::run_files::RunFiles;
-use depthmesh::session::{Session, SessionConfig};
+use depthmesh::session::SessionConfig;
 use depthmesh::track::TrackerConfig;
 use serde_json::{json, Map};
 use std::path::PathBuf;
@@ -47,6 +48,8 @@ pub struct ReconstructArgs {
     pub export: RunExportArgs,
     #[command(flatten)]
     pub memory: MemoryArgs,
+    #[command(flatten)]
+    pub store: StoreArgs,
 }
 
 /// Runs `reconstruct`.
@@ -77,20 +80,22 @@ pub fn run(args: &ReconstructArgs, quiet: bool) -> Result<()> {
     let map = args.map.config(k);
     let depth = median_depth(&first.depth);
     args.memory.check_map(&map, &k, dataset.len(), depth)?;
-    let mut session = Session::new(SessionConfig {
+    let config = SessionConfig {
         intrinsics: k,
         map,
         tracking: args.track.then(TrackerConfig::default),
-    })?;
+    };
+    let (mut session, mut store, position) = args.store.open(config, &args.dataset, &dataset)?;
     args.map.bounded.note_reach(&session);
-    let out = OutDir::prepare(&args.out, args.force)?;
+    let out = OutDir::prepare(&args.out, args.force || args.store.resume)?;
     let mut files = RunFiles::create(&args.out, &session)?;
     let mut status = StatusWriter::new(args.status_every, files.path("status"));
     let bar = progress::bar(dataset.len() as u64, "reconstruct", quiet);
-    let mut frames = dataset.frames();
+    bar.inc(position as u64);
+    let mut frames = dataset.frames_from(position);
     let mut colourless = 0;
     let mut stopped = None;
-    for frame in frames.by_ref() {
+    while let Some(frame) = frames.next() {
         let frame = frame?;
         colourless += usize::from(args.map.color && frame.color.is_none());
         let outcome = session
@@ -100,6 +105,7 @@ pub fn run(args: &ReconstructArgs, quiet: bool) -> Result<()> {
         let pose = outcome.record.pose;
         files.after_frame(&mut session)?;
         status.after_frame(&session, &k, pose, frame.index)?;
+        store.after_frame(&session, frames.position())?;
         bar.inc(1);
         if let Some(why) = args.memory.exceeded(&session) {
             bar.suspend(|| eprintln!("frame {}: {why}: stopping", frame.index));
@@ -127,6 +133,7 @@ pub fn run(args: &ReconstructArgs, quiet: bool) -> Result<()> {
         "integrate_fps".into(),
         json!(session.records().len() as f64 / session.seconds()),
     );
+    store.summarise(&mut summary)?;
     let summary = files.finish(&mut session, summary)?;
     args.export.write(session.mesh(), &args.out)?;
     // A run that lost tracking keeps its files: they show what happened.

@@ -20,6 +20,7 @@ pub mod planes;
 pub mod raster;
 pub mod session;
 pub mod sim;
+pub mod store;
 pub mod track;
 pub mod trajectory;
 pub mod tsdf;

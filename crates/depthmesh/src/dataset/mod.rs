@@ -371,9 +371,15 @@ impl Dataset {
 
     /// The selected frames in order, leaving out bad ones when `skip_bad_frames` is set.
     pub fn frames(&self) -> Frames<'_> {
+        self.frames_from(0)
+    }
+
+    /// Like [`Dataset::frames`], from the `position`-th selected frame on
+    /// (to continue a run that read the ones before).
+    pub fn frames_from(&self, position: usize) -> Frames<'_> {
         Frames {
             dataset: self,
-            next: 0,
+            next: position,
             failed: false,
             skipped: Vec::new(),
         }
@@ -402,6 +408,12 @@ pub struct Frames<'a> {
 }
 
 impl Frames<'_> {
+    /// How many selected frames were read (or left out) so far, counting
+    /// from the start of the selection.
+    pub fn position(&self) -> usize {
+        self.next
+    }
+
     /// The frames left out so far, in order.
     pub fn skipped(&self) -> &[Skipped] {
         &self.skipped

@@ -137,6 +137,36 @@ impl Session {
         })
     }
 
+    /// A session that continues one saved after its first records: the
+    /// map's state (for now the TSDF's blocks after `frames` fused frames)
+    /// and the records so far. Tracked sessions cannot be continued yet
+    /// (the tracker's state is not saved).
+    pub fn resume(
+        config: SessionConfig,
+        records: Vec<FrameRecord>,
+        blocks: Vec<crate::tsdf::Block>,
+        frames: u32,
+    ) -> Result<Self> {
+        if config.tracking.is_some() {
+            return Err(Error::parameter(
+                "tracking",
+                "a tracked session cannot be continued yet (the tracker's state is not saved)",
+            ));
+        }
+        let mut session = Session::new(config)?;
+        match &mut session.backend {
+            Backend::Tsdf(t) => t.restore(blocks, frames)?,
+            _ => {
+                return Err(Error::parameter(
+                    "map",
+                    "only TSDF sessions can be continued yet",
+                ))
+            }
+        }
+        session.records = records;
+        Ok(session)
+    }
+
     /// The settings the session was made with.
     pub fn config(&self) -> &SessionConfig {
         &self.config

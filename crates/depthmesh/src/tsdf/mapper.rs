@@ -104,6 +104,15 @@ impl TsdfMapper {
         self.peak_blocks
     }
 
+    /// Puts back the blocks of a map saved after `frames` fused frames (see
+    /// [`TsdfVolume::restore`]).
+    pub fn restore(&mut self, blocks: Vec<super::Block>, frames: u32) -> Result<()> {
+        self.volume.restore(blocks, frames)?;
+        self.peak_blocks = self.peak_blocks.max(self.volume.blocks().len());
+        self.assembled = false;
+        Ok(())
+    }
+
     /// The fused volume.
     pub fn volume(&self) -> &TsdfVolume {
         &self.volume

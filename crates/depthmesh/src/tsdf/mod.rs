@@ -420,6 +420,55 @@ impl TsdfVolume {
         }
     }
 
+    /// Puts back blocks saved after `frames` fused frames (a map store's
+    /// checkpoint): the volume continues as the one that was saved. Every
+    /// block counts as changed at `frames`, so the first mesh made from it
+    /// meshes them all. A block whose key is already held replaces it.
+    pub fn restore(&mut self, blocks: Vec<Block>, frames: u32) -> Result<()> {
+        let colour = self.config.color;
+        for block in blocks {
+            if block.color.is_some() != colour {
+                return Err(Error::parameter(
+                    "color",
+                    "a saved block's colour does not match the volume's setting",
+                ));
+            }
+            let changed = Changes {
+                values: [frames; 8],
+                weights: frames,
+            };
+            match self.index.get(&block.key) {
+                Some(&i) => {
+                    self.blocks[i as usize] = block;
+                    self.changes[i as usize] = changed;
+                }
+                None => {
+                    self.index.insert(block.key, self.blocks.len() as u32);
+                    self.blocks.push(block);
+                    self.changes.push(changed);
+                }
+            }
+        }
+        self.frames = self.frames.max(frames);
+        Ok(())
+    }
+
+    /// The keys of blocks changed (any voxel, weights included) after frame
+    /// `since`.
+    pub fn changed_after(&self, since: u32) -> Vec<IVec3> {
+        self.blocks
+            .iter()
+            .zip(&self.changes)
+            .filter(|(_, c)| c.weights.max(c.values.into_iter().max().unwrap_or(0)) > since)
+            .map(|(b, _)| b.key)
+            .collect()
+    }
+
+    /// The block with key `key`, if held.
+    pub fn block(&self, key: IVec3) -> Option<&Block> {
+        self.index.get(&key).map(|&i| &self.blocks[i as usize])
+    }
+
     /// Frees the blocks with the given keys (keys not in the map are ignored).
     /// Block indices change: the last block moves into each freed slot.
     pub fn remove_blocks(&mut self, keys: &[IVec3]) {

@@ -1,0 +1,148 @@
+//! `--store`, `--checkpoint-every`, `--resume`: a run that writes its map to
+//! a store as it goes and can continue after a crash (see
+//! [`depthmesh::store`]).
+
+use anyhow::{bail, Context, Result};
+use clap::Args;
+use depthmesh::dataset::Dataset;
+use depthmesh::session::{Session, SessionConfig};
+use depthmesh::store::{self, MapStore};
+use serde_json::{json, Map, Value};
+use std::path::{Path, PathBuf};
+
+/// The store flags.
+#[derive(Args, Debug, Clone)]
+pub struct StoreArgs {
+    /// Write the map to this store (one file) in checkpoints, to continue
+    /// it with --resume after a crash (TSDF maps with given poses for now).
+    #[arg(long)]
+    pub store: Option<PathBuf>,
+    /// Commit a checkpoint every this many frames (about a second of a 30
+    /// frames/s sensor).
+    #[arg(long, default_value_t = 30)]
+    pub checkpoint_every: u32,
+    /// Continue the run whose store --store names from its last checkpoint
+    /// (same settings and dataset; --out is replaced).
+    #[arg(long, requires = "store")]
+    pub resume: bool,
+}
+
+/// The store of a run, if it has one, and what its checkpoints cost.
+pub struct StoreRun {
+    store: Option<MapStore>,
+    every: u32,
+    total: usize,
+    since: u32,
+    checkpoints: usize,
+    blocks: usize,
+    bytes: usize,
+    ms: f64,
+    resumed_at: Option<usize>,
+}
+
+impl StoreArgs {
+    /// The session to run (continued from the store with --resume), its
+    /// store, and the position in `dataset`'s selection to read from.
+    pub fn open(
+        &self,
+        config: SessionConfig,
+        dataset_path: &Path,
+        dataset: &Dataset,
+    ) -> Result<(Session, StoreRun, usize)> {
+        let mut run = StoreRun {
+            store: None,
+            every: self.checkpoint_every,
+            total: dataset.len(),
+            since: 0,
+            checkpoints: 0,
+            blocks: 0,
+            bytes: 0,
+            ms: 0.0,
+            resumed_at: None,
+        };
+        let Some(path) = &self.store else {
+            return Ok((Session::new(config)?, run, 0));
+        };
+        if self.checkpoint_every == 0 {
+            bail!("--checkpoint-every must be at least 1");
+        }
+        let identity = store::identity(&config, dataset_identity(dataset_path, dataset)?)
+            .with_context(|| format!("--store {}", path.display()))?;
+        if !self.resume {
+            run.store = Some(MapStore::create(path, &identity)?);
+            return Ok((Session::new(config)?, run, 0));
+        }
+        let (opened, saved) = MapStore::open(path)?;
+        store::check_identity(path, &saved.identity, &identity)?;
+        if saved.position > dataset.len() {
+            bail!(
+                "--store {}: it has read {} frames but the dataset selects {}",
+                path.display(),
+                saved.position,
+                dataset.len()
+            );
+        }
+        let position = saved.position;
+        let session = Session::resume(config, saved.records, saved.blocks, saved.frames)?;
+        run.store = Some(opened);
+        run.resumed_at = Some(position);
+        Ok((session, run, position))
+    }
+}
+
+impl StoreRun {
+    /// After a frame (`position` selected frames read): commits a
+    /// checkpoint when one is due, and after the last frame.
+    pub fn after_frame(&mut self, session: &Session, position: usize) -> Result<()> {
+        let Some(store) = &mut self.store else {
+            return Ok(());
+        };
+        self.since += 1;
+        if self.since < self.every && position < self.total {
+            return Ok(());
+        }
+        let c = store.checkpoint(session, position)?;
+        self.since = 0;
+        self.checkpoints += 1;
+        self.blocks += c.blocks;
+        self.bytes += c.bytes;
+        self.ms += c.ms;
+        Ok(())
+    }
+
+    /// Waits for the last commit and adds the store's figures to a run's
+    /// summary.
+    pub fn summarise(&mut self, summary: &mut Map<String, Value>) -> Result<()> {
+        let Some(store) = &mut self.store else {
+            return Ok(());
+        };
+        store.finish()?;
+        summary.insert(
+            "store".into(),
+            json!({
+                "checkpoints": self.checkpoints,
+                "blocks_written": self.blocks,
+                "bytes_written": self.bytes,
+                "stall_ms_mean": self.ms / self.checkpoints.max(1) as f64,
+                "stall_ms_total": self.ms,
+                "resumed_at_position": self.resumed_at,
+            }),
+        );
+        Ok(())
+    }
+}
+
+/// Where a run's frames come from, so that a store is continued only on
+/// the frames it was written from.
+fn dataset_identity(path: &Path, dataset: &Dataset) -> Result<Value> {
+    let path = path
+        .canonicalize()
+        .with_context(|| format!("{}", path.display()))?;
+    let last = dataset.len().saturating_sub(1);
+    Ok(json!({
+        "path": path.display().to_string(),
+        "selected": dataset.len(),
+        "first": dataset.frame_info(0)?.index,
+        "last": dataset.frame_info(last)?.index,
+    }))
+}

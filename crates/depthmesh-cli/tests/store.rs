@@ -1,0 +1,193 @@
+//! `reconstruct --store`: killed with SIGKILL at arbitrary points and
+//! resumed, a run ends with the mesh and trajectory of a run never
+//! interrupted; a damaged store or one written with other settings is
+//! refused with a message, and `info` says what a store holds.
+
+mod common;
+
+use common::{assert_fails_with, depthmesh, ok, scratch, simulated_frames_folder};
+use std::path::Path;
+use std::process::{Command, Stdio};
+use std::time::{Duration, Instant};
+
+const FRAMES: u32 = 60;
+
+fn reconstruct(frames: &Path, out: &Path, extra: &[&str]) -> Command {
+    let mut c = Command::new(env!("CARGO_BIN_EXE_depthmesh"));
+    c.args([
+        "reconstruct",
+        frames.to_str().unwrap(),
+        "--voxel",
+        "0.02",
+        "--quiet",
+    ])
+    .args(["--out", out.to_str().unwrap()])
+    .args(extra)
+    .stdout(Stdio::null())
+    .stderr(Stdio::null());
+    c
+}
+
+#[test]
+fn a_run_killed_and_resumed_ends_as_one_never_interrupted() {
+    let dir = scratch("store-kill");
+    let frames = dir.join("frames");
+    std::fs::create_dir_all(&frames).unwrap();
+    simulated_frames_folder(&frames, FRAMES);
+    let reference = dir.join("reference");
+    assert!(reconstruct(&frames, &reference, &[])
+        .status()
+        .unwrap()
+        .success());
+    let store = dir.join("map.store");
+    let store_arg = store.to_str().unwrap().to_string();
+    let run = dir.join("run");
+    // A small linear congruential generator: the same kill points every
+    // time, spread over the run.
+    let mut seed = 12_345u64;
+    let mut kills = 0;
+    let deadline = Instant::now() + Duration::from_secs(120);
+    while kills < 4 && Instant::now() < deadline {
+        // --force: a run killed before its store was made left only --out.
+        let mut args = vec![
+            "--store",
+            store_arg.as_str(),
+            "--checkpoint-every",
+            "4",
+            "--force",
+        ];
+        if store.exists() {
+            args.push("--resume");
+        }
+        let mut child = reconstruct(&frames, &run, &args).spawn().unwrap();
+        seed = seed.wrapping_mul(6_364_136_223_846_793_005).wrapping_add(1);
+        std::thread::sleep(Duration::from_millis(40 + (seed >> 33) % 400));
+        match child.try_wait().unwrap() {
+            Some(status) => {
+                // Finished before the kill: nothing more to interrupt.
+                assert!(status.success());
+                break;
+            }
+            None => {
+                child.kill().unwrap();
+                child.wait().unwrap();
+                kills += 1;
+            }
+        }
+    }
+    let mut args = vec![
+        "--store",
+        store_arg.as_str(),
+        "--checkpoint-every",
+        "4",
+        "--force",
+    ];
+    if store.exists() {
+        args.push("--resume");
+    }
+    assert!(reconstruct(&frames, &run, &args)
+        .status()
+        .unwrap()
+        .success());
+    for file in ["mesh.ply", "trajectory.txt"] {
+        assert!(
+            std::fs::read(run.join(file)).unwrap() == std::fs::read(reference.join(file)).unwrap(),
+            "{file} differs after {kills} kills"
+        );
+    }
+    let stats = std::fs::read_to_string(run.join("stats.csv")).unwrap();
+    assert_eq!(
+        stats.lines().count(),
+        FRAMES as usize + 1,
+        "a row per frame"
+    );
+    let info = depthmesh(&["info", &store_arg]);
+    ok(&info);
+    let info: serde_json::Value = serde_json::from_slice(&info.stdout).unwrap();
+    assert_eq!(info["frames"], FRAMES);
+    assert!(info["blocks"].as_u64().unwrap() > 0);
+    std::fs::remove_dir_all(dir).unwrap();
+}
+
+#[test]
+fn a_damaged_store_or_other_settings_are_refused() {
+    let dir = scratch("store-refused");
+    let frames = dir.join("frames");
+    std::fs::create_dir_all(&frames).unwrap();
+    simulated_frames_folder(&frames, 6);
+    let store = dir.join("map.store");
+    let s = store.to_str().unwrap();
+    let out = dir.join("out");
+    let o = out.to_str().unwrap();
+    let f = frames.to_str().unwrap();
+    ok(&depthmesh(&[
+        "reconstruct",
+        f,
+        "--voxel",
+        "0.02",
+        "--quiet",
+        "--out",
+        o,
+        "--store",
+        s,
+    ]));
+    // Another voxel size: the store says which setting differs.
+    assert_fails_with(
+        &depthmesh(&[
+            "reconstruct",
+            f,
+            "--voxel",
+            "0.03",
+            "--quiet",
+            "--out",
+            o,
+            "--store",
+            s,
+            "--resume",
+        ]),
+        &["voxel"],
+    );
+    // A store is not overwritten by a run that does not continue it.
+    assert_fails_with(
+        &depthmesh(&[
+            "reconstruct",
+            f,
+            "--voxel",
+            "0.02",
+            "--quiet",
+            "--out",
+            o,
+            "--force",
+            "--store",
+            s,
+        ]),
+        &["--resume"],
+    );
+    // Truncated, or overwritten in the middle: refused, naming the file.
+    let bytes = std::fs::read(&store).unwrap();
+    std::fs::write(&store, &bytes[..bytes.len() / 3]).unwrap();
+    assert_fails_with(&depthmesh(&["info", s]), &["map.store"]);
+    let mut damaged = bytes.clone();
+    for b in &mut damaged[4096..bytes.len().min(4096 * 4)] {
+        *b = 0xA5;
+    }
+    std::fs::write(&store, &damaged).unwrap();
+    assert_fails_with(
+        &depthmesh(&[
+            "reconstruct",
+            f,
+            "--voxel",
+            "0.02",
+            "--quiet",
+            "--out",
+            o,
+            "--store",
+            s,
+            "--resume",
+        ]),
+        &["map.store"],
+    );
+    std::fs::write(&store, b"not a store").unwrap();
+    assert_fails_with(&depthmesh(&["info", s]), &["not a store"]);
+    std::fs::remove_dir_all(dir).unwrap();
+}

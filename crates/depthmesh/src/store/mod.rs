@@ -1,0 +1,429 @@
+//! A map store: one file that holds what a mapping session needs to go on
+//! after a crash, written in checkpoints.
+//!
+//! The file is a [redb](https://docs.rs/redb) database: copy-on-write pages
+//! with checksums, each commit made durable (fsynced) before it returns, so
+//! a process killed at any instant leaves the store at its last checkpoint,
+//! whole. Tables:
+//!
+//! | table | key | value |
+//! |---|---|---|
+//! | `meta` | name | `format` (u64), `identity` (JSON: settings, camera, dataset), `checkpoint` (JSON: frames fused, dataset position, time) |
+//! | `blocks` | TSDF block coordinates | the block's distances, weights (and colours), LZ4-compressed ([`block_codec`]) |
+//! | `records` | frame order | the frame's record (pose, timings, map size) as JSON ([`records`]) |
+//!
+//! A checkpoint writes, in one transaction, the blocks changed since the
+//! previous checkpoint and the records since it, so its cost follows what
+//! the frames changed, not the map's size. For now the store holds TSDF
+//! sessions with given poses (the tracker's state and the other back-ends'
+//! maps are not saved yet).
+
+pub mod block_codec;
+pub mod records;
+
+use crate::error::{Error, Result};
+use crate::session::{Backend, FrameRecord, MapConfig, Session, SessionConfig};
+use crate::tsdf::Block;
+use rayon::prelude::*;
+use redb::{Database, ReadableDatabase, ReadableTable, TableDefinition};
+use serde_json::{json, Value};
+use std::path::{Path, PathBuf};
+use std::sync::Arc;
+use std::time::Instant;
+
+/// The store's format; a store of another format is refused.
+pub const FORMAT: u64 = 1;
+
+const META: TableDefinition<&str, &[u8]> = TableDefinition::new("meta");
+const BLOCKS: TableDefinition<(i32, i32, i32), &[u8]> = TableDefinition::new("blocks");
+const RECORDS: TableDefinition<u64, &[u8]> = TableDefinition::new("records");
+
+/// An open store, written by checkpoints.
+pub struct MapStore {
+    db: Arc<Database>,
+    /// The commit of the last checkpoint, running beside the frame loop.
+    writing: Option<std::thread::JoinHandle<Result<()>>>,
+    path: PathBuf,
+    /// Frames the volume had fused at the last checkpoint.
+    saved_frames: u32,
+    /// Records written so far.
+    saved_records: usize,
+}
+
+/// What a store holds: enough to continue the session it was written by.
+pub struct Saved {
+    /// The settings, camera and dataset it was written with.
+    pub identity: Value,
+    /// Frames the map had fused at the last checkpoint.
+    pub frames: u32,
+    /// How many of the dataset's selected frames were read by then.
+    pub position: usize,
+    /// A record per frame mapped.
+    pub records: Vec<FrameRecord>,
+    /// The TSDF's blocks.
+    pub blocks: Vec<Block>,
+}
+
+/// What a checkpoint wrote.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Checkpoint {
+    /// Blocks written (changed since the previous checkpoint).
+    pub blocks: usize,
+    /// Compressed bytes of those blocks.
+    pub bytes: usize,
+    /// Milliseconds the frame loop was held up: waiting for the previous
+    /// commit, and copying and compressing the changed blocks (the commit
+    /// itself runs on its own thread).
+    pub ms: f64,
+}
+
+/// The settings of `config` that a continued session must share with the
+/// one that wrote a store, as JSON; `dataset` says where frames come from.
+pub fn identity(config: &SessionConfig, dataset: Value) -> Result<Value> {
+    let MapConfig::Tsdf(t) = &config.map else {
+        return Err(Error::parameter(
+            "map",
+            "the map store holds TSDF maps for now",
+        ));
+    };
+    if config.tracking.is_some() {
+        return Err(Error::parameter(
+            "tracking",
+            "the map store cannot continue tracked sessions yet (the tracker's state is not saved)",
+        ));
+    }
+    if t.active_radius.is_some() {
+        return Err(Error::parameter(
+            "active_radius",
+            "the map store does not keep evicted blocks yet",
+        ));
+    }
+    let k = &config.intrinsics;
+    let c = &t.config;
+    Ok(json!({
+        "format": FORMAT,
+        "map": "tsdf",
+        "voxel": c.voxel,
+        "truncation": c.truncation,
+        "max_weight": c.max_weight,
+        "min_weight": c.min_weight,
+        "color": c.color,
+        "range": [t.range.0, t.range.1],
+        "camera": [k.width, k.height, k.fx, k.fy, k.cx, k.cy],
+        "dataset": dataset,
+    }))
+}
+
+impl MapStore {
+    /// Creates a store at `path` for a session with `identity`; an existing
+    /// file is refused (continue it, or remove it).
+    pub fn create(path: &Path, identity: &Value) -> Result<Self> {
+        if path.exists() {
+            return Err(Error::format(
+                path,
+                "a store exists here: continue it with --resume, or remove it",
+            ));
+        }
+        // Made under a temporary name and renamed once initialised, so a
+        // crash while creating it leaves no half-made store behind.
+        let mut temp = path.as_os_str().to_owned();
+        temp.push(format!(".{}.tmp", std::process::id()));
+        let temp = PathBuf::from(temp);
+        let db = Database::create(&temp).map_err(|e| store_error(&temp, e))?;
+        write(&db, &temp, |txn| {
+            let mut meta = txn.open_table(META)?;
+            meta.insert("format", FORMAT.to_le_bytes().as_slice())?;
+            meta.insert("identity", identity.to_string().as_bytes())?;
+            txn.open_table(BLOCKS)?;
+            txn.open_table(RECORDS)?;
+            Ok(())
+        })?;
+        drop(db);
+        std::fs::rename(&temp, path).map_err(|e| Error::io(path, e))?;
+        let (store, _) = MapStore::open(path)?;
+        Ok(store)
+    }
+
+    /// Opens the store at `path` and reads what it holds. A file that is not
+    /// a store, a damaged one or one of another format is an error naming it.
+    pub fn open(path: &Path) -> Result<(Self, Saved)> {
+        if !path.is_file() {
+            return Err(Error::format(path, "no store here"));
+        }
+        let (db, saved) = without_panics(path, || {
+            let mut db = Database::open(path).map_err(|e| store_error(path, e))?;
+            // Every page's checksum, before anything is read: a damaged
+            // page must be an error here, not a wrong map later.
+            if !db.check_integrity().map_err(|e| store_error(path, e))? {
+                return Err(Error::format(
+                    path,
+                    "map store: damaged (a page fails its checksum)",
+                ));
+            }
+            let saved = read_saved(&db, path)?;
+            Ok((db, saved))
+        })?;
+        let store = MapStore {
+            db: Arc::new(db),
+            writing: None,
+            path: path.to_path_buf(),
+            saved_frames: saved.frames,
+            saved_records: saved.records.len(),
+        };
+        Ok((store, saved))
+    }
+
+    /// Commits what changed since the last checkpoint: the blocks fused
+    /// since, the records since, and `position` (dataset frames read). The
+    /// changed blocks are copied and compressed here; the commit runs on a
+    /// thread of its own while mapping goes on (the next checkpoint, or
+    /// [`MapStore::finish`], waits for it), so the frame loop is held up by
+    /// the copy, not by the disk.
+    pub fn checkpoint(&mut self, session: &Session, position: usize) -> Result<Checkpoint> {
+        let start = Instant::now();
+        self.finish()?;
+        let Backend::Tsdf(t) = session.backend() else {
+            return Err(Error::parameter(
+                "map",
+                "the map store holds TSDF maps for now",
+            ));
+        };
+        let volume = t.volume();
+        let keys = volume.changed_after(self.saved_frames);
+        let blocks: Vec<((i32, i32, i32), Vec<u8>)> = keys
+            .par_iter()
+            .map(|key| {
+                let mut bytes = Vec::new();
+                block_codec::encode(
+                    volume.block(*key).expect("changed blocks are held"),
+                    &mut bytes,
+                );
+                ((key.x, key.y, key.z), bytes)
+            })
+            .collect();
+        let bytes = blocks.iter().map(|(_, b)| b.len()).sum();
+        let first = self.saved_records;
+        let rows: Vec<String> = session.records()[first..]
+            .iter()
+            .map(records::encode)
+            .collect();
+        let frames = volume.frames();
+        let checkpoint = json!({
+            "frames": frames,
+            "position": position,
+            "records": first + rows.len(),
+            "unix_seconds": std::time::SystemTime::now()
+                .duration_since(std::time::UNIX_EPOCH)
+                .map_or(0, |d| d.as_secs()),
+        })
+        .to_string();
+        let (db, path) = (self.db.clone(), self.path.clone());
+        self.writing = Some(std::thread::spawn(move || {
+            write(&db, &path, |txn| {
+                let mut table = txn.open_table(BLOCKS)?;
+                for (key, b) in &blocks {
+                    table.insert(*key, b.as_slice())?;
+                }
+                let mut table = txn.open_table(RECORDS)?;
+                for (i, row) in rows.iter().enumerate() {
+                    table.insert((first + i) as u64, row.as_bytes())?;
+                }
+                txn.open_table(META)?
+                    .insert("checkpoint", checkpoint.as_bytes())?;
+                Ok(())
+            })
+        }));
+        self.saved_frames = frames;
+        self.saved_records = session.records().len();
+        Ok(Checkpoint {
+            blocks: keys.len(),
+            bytes,
+            ms: start.elapsed().as_secs_f64() * 1e3,
+        })
+    }
+
+    /// Waits for the last checkpoint's commit; its error, if it failed.
+    pub fn finish(&mut self) -> Result<()> {
+        match self.writing.take() {
+            Some(handle) => handle
+                .join()
+                .unwrap_or_else(|_| Err(Error::format(&self.path, "map store: the commit failed"))),
+            None => Ok(()),
+        }
+    }
+}
+
+impl Drop for MapStore {
+    fn drop(&mut self) {
+        // A run that stops early still leaves its last checkpoint committed.
+        let _ = self.finish();
+    }
+}
+
+/// Runs `f` in one write transaction of `db` (the store at `path`) and
+/// commits it durably.
+fn write(
+    db: &Database,
+    path: &Path,
+    f: impl FnOnce(&redb::WriteTransaction) -> std::result::Result<(), redb::Error>,
+) -> Result<()> {
+    let run = || -> std::result::Result<(), redb::Error> {
+        let txn = db.begin_write()?;
+        f(&txn)?;
+        txn.commit()?;
+        Ok(())
+    };
+    run().map_err(|e| store_error(path, e))
+}
+
+/// Refuses to continue a store written with other settings, camera or
+/// dataset, naming what differs.
+pub fn check_identity(path: &Path, saved: &Value, wanted: &Value) -> Result<()> {
+    let (Some(a), Some(b)) = (saved.as_object(), wanted.as_object()) else {
+        return Err(Error::format(path, "the store's identity is not readable"));
+    };
+    let differs: Vec<String> = b
+        .iter()
+        .filter(|(k, v)| a.get(*k) != Some(v))
+        .map(|(k, v)| {
+            format!(
+                "{k} is {} in the store but {v} now",
+                a.get(k).map_or("missing".to_string(), Value::to_string)
+            )
+        })
+        .collect();
+    if differs.is_empty() {
+        Ok(())
+    } else {
+        Err(Error::format(
+            path,
+            format!(
+                "written by another run: {}; use the same settings, or a new store",
+                differs.join("; ")
+            ),
+        ))
+    }
+}
+
+/// What a store holds, for `depthmesh info`: its identity, last checkpoint,
+/// blocks, records and file size.
+pub fn info(path: &Path) -> Result<Value> {
+    let (_, saved) = MapStore::open(path)?;
+    let size = std::fs::metadata(path)
+        .map_err(|e| Error::io(path, e))?
+        .len();
+    let voxels = saved.blocks.len() * crate::tsdf::BLOCK_VOXELS;
+    Ok(json!({
+        "store": path.display().to_string(),
+        "format": FORMAT,
+        "frames": saved.frames,
+        "records": saved.records.len(),
+        "dataset_position": saved.position,
+        "blocks": saved.blocks.len(),
+        "voxels": voxels,
+        "file_bytes": size,
+        "file_bytes_per_voxel": size as f64 / voxels.max(1) as f64,
+        "identity": saved.identity,
+    }))
+}
+
+/// Reads a whole store.
+fn read_saved(db: &Database, path: &Path) -> Result<Saved> {
+    let bad = |message: String| Error::format(path, message);
+    let read = || -> std::result::Result<_, redb::Error> {
+        let txn = db.begin_read()?;
+        let meta = txn.open_table(META)?;
+        let format = meta.get("format")?.map(|v| v.value().to_vec());
+        let identity = meta.get("identity")?.map(|v| v.value().to_vec());
+        let checkpoint = meta.get("checkpoint")?.map(|v| v.value().to_vec());
+        let mut blocks = Vec::new();
+        for entry in txn.open_table(BLOCKS)?.iter()? {
+            let (k, v) = entry?;
+            blocks.push((k.value(), v.value().to_vec()));
+        }
+        let mut records = Vec::new();
+        for entry in txn.open_table(RECORDS)?.iter()? {
+            let (_, v) = entry?;
+            records.push(v.value().to_vec());
+        }
+        Ok((format, identity, checkpoint, blocks, records))
+    };
+    let (format, identity, checkpoint, blocks, records) =
+        read().map_err(|e| store_error(path, e))?;
+    let format = format
+        .and_then(|f| <[u8; 8]>::try_from(f.as_slice()).ok())
+        .map(u64::from_le_bytes)
+        .ok_or_else(|| bad("not a depthmesh map store (no format)".into()))?;
+    if format != FORMAT {
+        return Err(bad(format!(
+            "store format {format}; this depthmesh reads format {FORMAT}"
+        )));
+    }
+    let json = |bytes: Option<Vec<u8>>, what: &str| -> Result<Value> {
+        let bytes = bytes.ok_or_else(|| bad(format!("no {what}")))?;
+        serde_json::from_slice(&bytes).map_err(|e| bad(format!("{what}: {e}")))
+    };
+    let identity = json(identity, "identity")?;
+    let checkpoint = match checkpoint {
+        Some(c) => json(Some(c), "checkpoint")?,
+        None => json!({"frames": 0, "position": 0, "records": 0}),
+    };
+    let number = |k: &str| {
+        checkpoint[k]
+            .as_u64()
+            .ok_or_else(|| bad(format!("checkpoint: no {k}")))
+    };
+    let frames = u32::try_from(number("frames")?).map_err(|_| bad("checkpoint: frames".into()))?;
+    let position = number("position")? as usize;
+    if number("records")? as usize != records.len() {
+        return Err(bad("checkpoint and records disagree".into()));
+    }
+    let color = identity["color"].as_bool().unwrap_or(false);
+    let blocks = blocks
+        .into_iter()
+        .map(|((x, y, z), bytes)| {
+            block_codec::decode(glam::IVec3::new(x, y, z), &bytes, color)
+                .map_err(|e| bad(format!("block ({x}, {y}, {z}): {e}")))
+        })
+        .collect::<Result<Vec<_>>>()?;
+    let records = records
+        .iter()
+        .enumerate()
+        .map(|(i, r)| records::decode(r).map_err(|e| bad(format!("record {i}: {e}"))))
+        .collect::<Result<Vec<_>>>()?;
+    Ok(Saved {
+        identity,
+        frames,
+        position,
+        records,
+        blocks,
+    })
+}
+
+/// Runs `f`, turning a panic into an error naming `path`: redb 4.6 checks
+/// its pages' checksums, but some damaged files (overwritten pages) make it
+/// panic while opening them rather than return an error. The panic message
+/// is kept off the terminal; the error says what happened.
+fn without_panics<T>(path: &Path, f: impl FnOnce() -> Result<T>) -> Result<T> {
+    let hook = std::panic::take_hook();
+    std::panic::set_hook(Box::new(|_| {}));
+    let result = std::panic::catch_unwind(std::panic::AssertUnwindSafe(f));
+    std::panic::set_hook(hook);
+    result.unwrap_or_else(|_| {
+        Err(Error::format(
+            path,
+            "map store: damaged (its structure is inconsistent)",
+        ))
+    })
+}
+
+/// A store's error, naming the file and saying what to do.
+fn store_error(path: &Path, e: impl Into<redb::Error>) -> Error {
+    let e: redb::Error = e.into();
+    let hint = match &e {
+        redb::Error::Corrupted(_) | redb::Error::Io(_) => " (the file is damaged or not a store)",
+        redb::Error::DatabaseAlreadyOpen => " (another process has it open)",
+        _ => "",
+    };
+    Error::format(path, format!("map store: {e}{hint}"))
+}
