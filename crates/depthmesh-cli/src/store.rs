@@ -14,7 +14,7 @@ use std::path::{Path, PathBuf};
 #[derive(Args, Debug, Clone)]
 pub struct StoreArgs {
     /// Write the map to this store (one file) in checkpoints, to continue
-    /// it with --resume after a crash (TSDF maps with given poses for now).
+    /// it with --resume after a crash (TSDF maps for now).
     #[arg(long)]
     pub store: Option<PathBuf>,
     /// Commit a checkpoint every this many frames (about a second of a 30
@@ -83,7 +83,7 @@ impl StoreArgs {
             );
         }
         let position = saved.position;
-        let session = Session::resume(config, saved.records, saved.blocks, saved.frames)?;
+        let session = Session::resume(config, saved.session)?;
         run.store = Some(opened);
         run.resumed_at = Some(position);
         Ok((session, run, position))

@@ -12,7 +12,7 @@ use std::time::{Duration, Instant};
 
 const FRAMES: u32 = 60;
 
-fn reconstruct(frames: &Path, out: &Path, extra: &[&str]) -> Command {
+fn reconstruct(frames: &Path, out: &Path, extra: &[&str], track: bool) -> Command {
     let mut c = Command::new(env!("CARGO_BIN_EXE_depthmesh"));
     c.args([
         "reconstruct",
@@ -23,9 +23,26 @@ fn reconstruct(frames: &Path, out: &Path, extra: &[&str]) -> Command {
     ])
     .args(["--out", out.to_str().unwrap()])
     .args(extra)
+    .args(if track { &["--track"][..] } else { &[] })
     .stdout(Stdio::null())
     .stderr(Stdio::null());
     c
+}
+
+/// The store flags of a run that continues `store` if it exists (--force:
+/// a run killed before its store was made left only --out).
+fn store_args(store: &Path) -> Vec<&str> {
+    let mut args = vec![
+        "--store",
+        store.to_str().unwrap(),
+        "--checkpoint-every",
+        "4",
+        "--force",
+    ];
+    if store.exists() {
+        args.push("--resume");
+    }
+    args
 }
 
 #[test]
@@ -34,13 +51,21 @@ fn a_run_killed_and_resumed_ends_as_one_never_interrupted() {
     let frames = dir.join("frames");
     std::fs::create_dir_all(&frames).unwrap();
     simulated_frames_folder(&frames, FRAMES);
+    for track in [false, true] {
+        killed_and_resumed(&dir.join(format!("track-{track}")), &frames, track);
+    }
+    std::fs::remove_dir_all(dir).unwrap();
+}
+
+/// Kills `reconstruct --store` at seeded points (at most four times),
+/// resumes it to the end, and compares with a run never interrupted.
+fn killed_and_resumed(dir: &Path, frames: &Path, track: bool) {
     let reference = dir.join("reference");
-    assert!(reconstruct(&frames, &reference, &[])
+    assert!(reconstruct(frames, &reference, &[], track)
         .status()
         .unwrap()
         .success());
     let store = dir.join("map.store");
-    let store_arg = store.to_str().unwrap().to_string();
     let run = dir.join("run");
     // A small linear congruential generator: the same kill points every
     // time, spread over the run.
@@ -48,20 +73,12 @@ fn a_run_killed_and_resumed_ends_as_one_never_interrupted() {
     let mut kills = 0;
     let deadline = Instant::now() + Duration::from_secs(120);
     while kills < 4 && Instant::now() < deadline {
-        // --force: a run killed before its store was made left only --out.
-        let mut args = vec![
-            "--store",
-            store_arg.as_str(),
-            "--checkpoint-every",
-            "4",
-            "--force",
-        ];
-        if store.exists() {
-            args.push("--resume");
-        }
-        let mut child = reconstruct(&frames, &run, &args).spawn().unwrap();
+        let mut child = reconstruct(frames, &run, &store_args(&store), track)
+            .spawn()
+            .unwrap();
         seed = seed.wrapping_mul(6_364_136_223_846_793_005).wrapping_add(1);
-        std::thread::sleep(Duration::from_millis(40 + (seed >> 33) % 400));
+        // Within the first 180 ms: a whole run takes about 200 ms here.
+        std::thread::sleep(Duration::from_millis(20 + (seed >> 33) % 160));
         match child.try_wait().unwrap() {
             Some(status) => {
                 // Finished before the kill: nothing more to interrupt.
@@ -75,24 +92,15 @@ fn a_run_killed_and_resumed_ends_as_one_never_interrupted() {
             }
         }
     }
-    let mut args = vec![
-        "--store",
-        store_arg.as_str(),
-        "--checkpoint-every",
-        "4",
-        "--force",
-    ];
-    if store.exists() {
-        args.push("--resume");
-    }
-    assert!(reconstruct(&frames, &run, &args)
+    assert!(kills > 0, "the run always finished before it was killed");
+    assert!(reconstruct(frames, &run, &store_args(&store), track)
         .status()
         .unwrap()
         .success());
     for file in ["mesh.ply", "trajectory.txt"] {
         assert!(
             std::fs::read(run.join(file)).unwrap() == std::fs::read(reference.join(file)).unwrap(),
-            "{file} differs after {kills} kills"
+            "{file} differs after {kills} kills (tracking {track})"
         );
     }
     let stats = std::fs::read_to_string(run.join("stats.csv")).unwrap();
@@ -101,12 +109,12 @@ fn a_run_killed_and_resumed_ends_as_one_never_interrupted() {
         FRAMES as usize + 1,
         "a row per frame"
     );
-    let info = depthmesh(&["info", &store_arg]);
+    let info = depthmesh(&["info", store.to_str().unwrap()]);
     ok(&info);
     let info: serde_json::Value = serde_json::from_slice(&info.stdout).unwrap();
     assert_eq!(info["frames"], FRAMES);
+    assert_eq!(info["tracked"], track, "{info}");
     assert!(info["blocks"].as_u64().unwrap() > 0);
-    std::fs::remove_dir_all(dir).unwrap();
 }
 
 #[test]

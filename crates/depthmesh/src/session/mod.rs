@@ -20,7 +20,7 @@ pub mod status;
 pub mod view;
 
 pub use backend::{Backend, MapConfig, PlanesSettings, TsdfSettings};
-pub use poses::{TrackEvent, TrackRecord};
+pub use poses::{PoseState, TrackEvent, TrackRecord};
 
 use crate::camera::{Intrinsics, Pose};
 use crate::error::{Error, Result};
@@ -43,6 +43,21 @@ pub struct SessionConfig {
     /// `Some`: poses are tracked by ICP with these settings (only the first
     /// frame's pose is taken from the data); `None`: every frame brings its pose.
     pub tracking: Option<TrackerConfig>,
+}
+
+/// A saved session's state, to continue it ([`Session::resume`]).
+#[derive(Debug)]
+pub struct Resumed {
+    /// A record per frame mapped.
+    pub records: Vec<FrameRecord>,
+    /// The TSDF's blocks.
+    pub blocks: Vec<crate::tsdf::Block>,
+    /// Frames the map had fused.
+    pub frames: u32,
+    /// The pose and depth of the last fused frame.
+    pub last_view: Option<(Pose, crate::image::DepthImage)>,
+    /// The tracking state, when poses were tracked.
+    pub poses: Option<PoseState>,
 }
 
 /// What became of one frame: a row of the run's `stats.csv`.
@@ -138,24 +153,18 @@ impl Session {
     }
 
     /// A session that continues one saved after its first records: the
-    /// map's state (for now the TSDF's blocks after `frames` fused frames)
-    /// and the records so far. Tracked sessions cannot be continued yet
-    /// (the tracker's state is not saved).
-    pub fn resume(
-        config: SessionConfig,
-        records: Vec<FrameRecord>,
-        blocks: Vec<crate::tsdf::Block>,
-        frames: u32,
-    ) -> Result<Self> {
-        if config.tracking.is_some() {
-            return Err(Error::parameter(
-                "tracking",
-                "a tracked session cannot be continued yet (the tracker's state is not saved)",
-            ));
-        }
+    /// map's state (for now the TSDF's blocks after `frames` fused frames,
+    /// and its last fused view), the records so far and, when poses are
+    /// tracked, the tracking state.
+    pub fn resume(config: SessionConfig, saved: Resumed) -> Result<Self> {
         let mut session = Session::new(config)?;
         match &mut session.backend {
-            Backend::Tsdf(t) => t.restore(blocks, frames)?,
+            Backend::Tsdf(t) => {
+                t.restore(saved.blocks, saved.frames)?;
+                if let Some(view) = saved.last_view {
+                    t.set_last_view(view);
+                }
+            }
             _ => {
                 return Err(Error::parameter(
                     "map",
@@ -163,8 +172,23 @@ impl Session {
                 ))
             }
         }
-        session.records = records;
+        match (saved.poses, session.poses.tracking()) {
+            (Some(state), true) => session.poses.restore(state)?,
+            (None, false) => {}
+            _ => {
+                return Err(Error::parameter(
+                    "tracking",
+                    "the saved session and this one differ in tracking",
+                ))
+            }
+        }
+        session.records = saved.records;
         Ok(session)
+    }
+
+    /// What tracking carries from frame to frame (`None` with given poses).
+    pub fn pose_state(&self) -> Option<PoseState> {
+        self.poses.state()
     }
 
     /// The settings the session was made with.

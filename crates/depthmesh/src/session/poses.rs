@@ -5,7 +5,7 @@ use crate::camera::{Intrinsics, Pose};
 use crate::error::{Error, Result};
 use crate::image::Frame;
 use crate::map::Mapper;
-use crate::track::{LostReason, Tracked, Tracker, TrackerConfig};
+use crate::track::{LostReason, Tracked, Tracker, TrackerConfig, TrackerState};
 use std::time::Instant;
 
 /// The tracking columns of a frame's record.
@@ -56,6 +56,23 @@ pub(super) struct Decided {
     pub event: Option<TrackEvent>,
 }
 
+/// What a tracked session's pose source carries from frame to frame.
+#[derive(Clone, Debug, PartialEq)]
+pub struct PoseState {
+    /// The tracker's state, once the first frame started it.
+    pub tracker: Option<TrackerState>,
+    /// Times tracking was lost.
+    pub lost: usize,
+    /// Frames lost.
+    pub lost_frames: usize,
+    /// Frames lost in the current run of losses.
+    pub streak: usize,
+    /// Seconds spent tracking.
+    pub track_seconds: f64,
+    /// Frames tracked.
+    pub tracked: usize,
+}
+
 /// Given poses, or a tracker and its count of losses.
 #[derive(Debug)]
 pub(super) struct PoseSource {
@@ -92,6 +109,40 @@ impl PoseSource {
     /// Whether poses are tracked.
     pub fn tracking(&self) -> bool {
         self.tracking.is_some()
+    }
+
+    /// What tracking carries from frame to frame (`None` when poses are
+    /// given), to save.
+    pub fn state(&self) -> Option<PoseState> {
+        let (_, tracker) = self.tracking.as_ref()?;
+        Some(PoseState {
+            tracker: tracker.as_ref().map(Tracker::state),
+            lost: self.lost,
+            lost_frames: self.lost_frames,
+            streak: self.streak,
+            track_seconds: self.track_seconds,
+            tracked: self.tracked,
+        })
+    }
+
+    /// Goes on from a saved [`PoseSource::state`].
+    pub fn restore(&mut self, state: PoseState) -> Result<()> {
+        let Some((config, tracker)) = self.tracking.as_mut() else {
+            return Err(Error::parameter(
+                "tracking",
+                "the saved session tracked its poses",
+            ));
+        };
+        *tracker = state
+            .tracker
+            .map(|t| Tracker::restore(config.clone(), self.intrinsics, t))
+            .transpose()?;
+        self.lost = state.lost;
+        self.lost_frames = state.lost_frames;
+        self.streak = state.streak;
+        self.track_seconds = state.track_seconds;
+        self.tracked = state.tracked;
+        Ok(())
     }
 
     /// The pose of `frame` against `map`, the map built so far.

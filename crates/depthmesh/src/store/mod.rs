@@ -8,22 +8,24 @@
 //!
 //! | table | key | value |
 //! |---|---|---|
-//! | `meta` | name | `format` (u64), `identity` (JSON: settings, camera, dataset), `checkpoint` (JSON: frames fused, dataset position, time) |
+//! | `meta` | name | `format` (u64), `identity` (JSON: settings, camera, dataset), `checkpoint` (JSON: frames fused, dataset position, time), `tracking` (JSON: the tracker's state), `last_view` (the last fused frame's pose and depth, from which ray casting for tracking starts) |
 //! | `blocks` | TSDF block coordinates | the block's distances, weights (and colours), LZ4-compressed ([`block_codec`]) |
 //! | `records` | frame order | the frame's record (pose, timings, map size) as JSON ([`records`]) |
 //!
-//! A checkpoint writes, in one transaction, the blocks changed since the
-//! previous checkpoint and the records since it, so its cost follows what
-//! the frames changed, not the map's size. For now the store holds TSDF
-//! sessions with given poses (the tracker's state and the other back-ends'
-//! maps are not saved yet).
+//! A checkpoint writes, in one transaction, the blocks changed or allocated
+//! since the previous checkpoint and the records since it, so its cost
+//! follows what the frames changed, not the map's size. For now the store
+//! holds TSDF sessions (given or tracked poses; the other back-ends' maps
+//! and bounded memory's evicted blocks are not saved yet).
 
 pub mod block_codec;
 pub mod records;
 
+use crate::camera::Pose;
 use crate::error::{Error, Result};
-use crate::session::{Backend, FrameRecord, MapConfig, Session, SessionConfig};
-use crate::tsdf::Block;
+use crate::image::DepthImage;
+use crate::session::{Backend, MapConfig, PoseState, Resumed, Session, SessionConfig};
+use crate::track::TrackerState;
 use rayon::prelude::*;
 use redb::{Database, ReadableDatabase, ReadableTable, TableDefinition};
 use serde_json::{json, Value};
@@ -46,6 +48,9 @@ pub struct MapStore {
     path: PathBuf,
     /// Frames the volume had fused at the last checkpoint.
     saved_frames: u32,
+    /// Blocks the volume held then (blocks are only ever appended while
+    /// a store is kept, so the ones after these are new).
+    saved_blocks: usize,
     /// Records written so far.
     saved_records: usize,
 }
@@ -54,14 +59,10 @@ pub struct MapStore {
 pub struct Saved {
     /// The settings, camera and dataset it was written with.
     pub identity: Value,
-    /// Frames the map had fused at the last checkpoint.
-    pub frames: u32,
     /// How many of the dataset's selected frames were read by then.
     pub position: usize,
-    /// A record per frame mapped.
-    pub records: Vec<FrameRecord>,
-    /// The TSDF's blocks.
-    pub blocks: Vec<Block>,
+    /// The session's state at the last checkpoint.
+    pub session: Resumed,
 }
 
 /// What a checkpoint wrote.
@@ -86,12 +87,6 @@ pub fn identity(config: &SessionConfig, dataset: Value) -> Result<Value> {
             "the map store holds TSDF maps for now",
         ));
     };
-    if config.tracking.is_some() {
-        return Err(Error::parameter(
-            "tracking",
-            "the map store cannot continue tracked sessions yet (the tracker's state is not saved)",
-        ));
-    }
     if t.active_radius.is_some() {
         return Err(Error::parameter(
             "active_radius",
@@ -110,6 +105,8 @@ pub fn identity(config: &SessionConfig, dataset: Value) -> Result<Value> {
         "color": c.color,
         "range": [t.range.0, t.range.1],
         "camera": [k.width, k.height, k.fx, k.fy, k.cx, k.cy],
+        // The tracker's settings as a whole: any change is refused.
+        "tracking": config.tracking.as_ref().map(|t| format!("{t:?}")),
         "dataset": dataset,
     }))
 }
@@ -167,8 +164,9 @@ impl MapStore {
             db: Arc::new(db),
             writing: None,
             path: path.to_path_buf(),
-            saved_frames: saved.frames,
-            saved_records: saved.records.len(),
+            saved_frames: saved.session.frames,
+            saved_blocks: saved.session.blocks.len(),
+            saved_records: saved.session.records.len(),
         };
         Ok((store, saved))
     }
@@ -189,7 +187,17 @@ impl MapStore {
             ));
         };
         let volume = t.volume();
-        let keys = volume.changed_after(self.saved_frames);
+        // Changed blocks, and new ones even if nothing was fused into them
+        // yet: ray casting treats a block that is there but empty otherwise
+        // than one that is not, so the continued map must hold the same.
+        let mut keys = volume.changed_after(self.saved_frames);
+        keys.extend(
+            volume.blocks()[self.saved_blocks.min(volume.blocks().len())..]
+                .iter()
+                .map(|b| b.key),
+        );
+        keys.sort_unstable_by_key(|k| (k.x, k.y, k.z));
+        keys.dedup();
         let blocks: Vec<((i32, i32, i32), Vec<u8>)> = keys
             .par_iter()
             .map(|key| {
@@ -208,6 +216,10 @@ impl MapStore {
             .map(records::encode)
             .collect();
         let frames = volume.frames();
+        let tracking = session
+            .pose_state()
+            .map(|p| pose_state_json(&p).to_string());
+        let last_view = t.last_view().map(|(pose, depth)| view_bytes(pose, depth));
         let checkpoint = json!({
             "frames": frames,
             "position": position,
@@ -228,12 +240,19 @@ impl MapStore {
                 for (i, row) in rows.iter().enumerate() {
                     table.insert((first + i) as u64, row.as_bytes())?;
                 }
-                txn.open_table(META)?
-                    .insert("checkpoint", checkpoint.as_bytes())?;
+                let mut meta = txn.open_table(META)?;
+                if let Some(tracking) = &tracking {
+                    meta.insert("tracking", tracking.as_bytes())?;
+                }
+                if let Some(view) = &last_view {
+                    meta.insert("last_view", view.as_slice())?;
+                }
+                meta.insert("checkpoint", checkpoint.as_bytes())?;
                 Ok(())
             })
         }));
         self.saved_frames = frames;
+        self.saved_blocks = volume.blocks().len();
         self.saved_records = session.records().len();
         Ok(Checkpoint {
             blocks: keys.len(),
@@ -312,14 +331,15 @@ pub fn info(path: &Path) -> Result<Value> {
     let size = std::fs::metadata(path)
         .map_err(|e| Error::io(path, e))?
         .len();
-    let voxels = saved.blocks.len() * crate::tsdf::BLOCK_VOXELS;
+    let voxels = saved.session.blocks.len() * crate::tsdf::BLOCK_VOXELS;
     Ok(json!({
         "store": path.display().to_string(),
         "format": FORMAT,
-        "frames": saved.frames,
-        "records": saved.records.len(),
+        "frames": saved.session.frames,
+        "records": saved.session.records.len(),
         "dataset_position": saved.position,
-        "blocks": saved.blocks.len(),
+        "blocks": saved.session.blocks.len(),
+        "tracked": saved.session.poses.is_some(),
         "voxels": voxels,
         "file_bytes": size,
         "file_bytes_per_voxel": size as f64 / voxels.max(1) as f64,
@@ -336,6 +356,8 @@ fn read_saved(db: &Database, path: &Path) -> Result<Saved> {
         let format = meta.get("format")?.map(|v| v.value().to_vec());
         let identity = meta.get("identity")?.map(|v| v.value().to_vec());
         let checkpoint = meta.get("checkpoint")?.map(|v| v.value().to_vec());
+        let tracking = meta.get("tracking")?.map(|v| v.value().to_vec());
+        let last_view = meta.get("last_view")?.map(|v| v.value().to_vec());
         let mut blocks = Vec::new();
         for entry in txn.open_table(BLOCKS)?.iter()? {
             let (k, v) = entry?;
@@ -346,9 +368,11 @@ fn read_saved(db: &Database, path: &Path) -> Result<Saved> {
             let (_, v) = entry?;
             records.push(v.value().to_vec());
         }
-        Ok((format, identity, checkpoint, blocks, records))
+        Ok((
+            format, identity, checkpoint, tracking, last_view, blocks, records,
+        ))
     };
-    let (format, identity, checkpoint, blocks, records) =
+    let (format, identity, checkpoint, tracking, last_view, blocks, records) =
         read().map_err(|e| store_error(path, e))?;
     let format = format
         .and_then(|f| <[u8; 8]>::try_from(f.as_slice()).ok())
@@ -391,13 +415,132 @@ fn read_saved(db: &Database, path: &Path) -> Result<Saved> {
         .enumerate()
         .map(|(i, r)| records::decode(r).map_err(|e| bad(format!("record {i}: {e}"))))
         .collect::<Result<Vec<_>>>()?;
+    let poses = match tracking {
+        Some(t) => Some(pose_state_from(&json(Some(t), "tracking")?).map_err(bad)?),
+        None => None,
+    };
+    let last_view = last_view
+        .map(|v| view_from(&v).map_err(|e| bad(format!("last view: {e}"))))
+        .transpose()?;
     Ok(Saved {
         identity,
-        frames,
         position,
-        records,
-        blocks,
+        session: Resumed {
+            records,
+            blocks,
+            frames,
+            last_view,
+            poses,
+        },
     })
+}
+
+/// The tracking state as JSON (poses as [`records::pose_array`]).
+fn pose_state_json(p: &PoseState) -> Value {
+    json!({
+        "tracker": p.tracker.as_ref().map(|t| json!({
+            "last_good": records::pose_array(&t.last_good),
+            "velocity": records::pose_array(&t.velocity),
+            "lost_streak": t.lost_streak,
+            "velocity_known": t.velocity_known,
+            "keyframe_codes": t.keyframe_codes,
+            "keyframe_poses": t.keyframe_poses.iter().map(records::pose_array).collect::<Vec<_>>(),
+        })),
+        "lost": p.lost,
+        "lost_frames": p.lost_frames,
+        "streak": p.streak,
+        "track_seconds": p.track_seconds,
+        "tracked": p.tracked,
+    })
+}
+
+fn pose_state_from(v: &Value) -> std::result::Result<PoseState, String> {
+    let count = |v: &Value, k: &str| {
+        v[k].as_u64()
+            .map(|n| n as usize)
+            .ok_or_else(|| format!("tracking: no {k}"))
+    };
+    let tracker = match &v["tracker"] {
+        Value::Null => None,
+        t => Some(TrackerState {
+            last_good: records::pose_from(&t["last_good"])?,
+            velocity: records::pose_from(&t["velocity"])?,
+            lost_streak: count(t, "lost_streak")?,
+            velocity_known: t["velocity_known"]
+                .as_bool()
+                .ok_or("tracking: no velocity_known")?,
+            keyframe_codes: t["keyframe_codes"]
+                .as_array()
+                .ok_or("tracking: no keyframe codes")?
+                .iter()
+                .map(|c| {
+                    c.as_u64()
+                        .and_then(|c| u8::try_from(c).ok())
+                        .ok_or("tracking: bad code")
+                })
+                .collect::<std::result::Result<_, _>>()?,
+            keyframe_poses: t["keyframe_poses"]
+                .as_array()
+                .ok_or("tracking: no keyframe poses")?
+                .iter()
+                .map(records::pose_from)
+                .collect::<std::result::Result<_, _>>()?,
+        }),
+    };
+    Ok(PoseState {
+        tracker,
+        lost: count(v, "lost")?,
+        lost_frames: count(v, "lost_frames")?,
+        streak: count(v, "streak")?,
+        track_seconds: v["track_seconds"]
+            .as_f64()
+            .ok_or("tracking: no track_seconds")?,
+        tracked: count(v, "tracked")?,
+    })
+}
+
+/// The last fused view: pose (12 × f32), width and height (u32), then the
+/// depth (f32 each) LZ4-compressed; little-endian.
+fn view_bytes(pose: &Pose, depth: &DepthImage) -> Vec<u8> {
+    let mut out = Vec::new();
+    for x in records::pose_array(pose) {
+        out.extend_from_slice(&x.to_le_bytes());
+    }
+    out.extend_from_slice(&depth.width.to_le_bytes());
+    out.extend_from_slice(&depth.height.to_le_bytes());
+    let raw: Vec<u8> = depth.data.iter().flat_map(|d| d.to_le_bytes()).collect();
+    out.extend_from_slice(&lz4_flex::compress_prepend_size(&raw));
+    out
+}
+
+fn view_from(bytes: &[u8]) -> std::result::Result<(Pose, DepthImage), String> {
+    if bytes.len() < 56 {
+        return Err("too short".into());
+    }
+    let f = |i: usize| f32::from_le_bytes(bytes[4 * i..4 * i + 4].try_into().expect("4 bytes"));
+    let a: Vec<f32> = (0..12).map(f).collect();
+    let pose = Pose::new(
+        glam::Mat3::from_cols_slice(&a[..9]),
+        glam::Vec3::new(a[9], a[10], a[11]),
+    );
+    let u = |o: usize| u32::from_le_bytes(bytes[o..o + 4].try_into().expect("4 bytes"));
+    let (width, height) = (u(48), u(52));
+    let raw = lz4_flex::decompress_size_prepended(&bytes[56..]).map_err(|e| e.to_string())?;
+    if raw.len() != 4 * width as usize * height as usize {
+        return Err("depth size".into());
+    }
+    let data = raw
+        .chunks_exact(4)
+        .map(|b| f32::from_le_bytes([b[0], b[1], b[2], b[3]]))
+        .collect();
+    Ok((
+        pose,
+        DepthImage {
+            width,
+            height,
+            data,
+        },
+    ))
 }
 
 /// Runs `f`, turning a panic into an error naming `path`: redb 4.6 checks

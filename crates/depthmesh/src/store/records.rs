@@ -3,7 +3,8 @@
 
 use crate::camera::Pose;
 use crate::map::IntegrateReport;
-use crate::session::FrameRecord;
+use crate::session::{FrameRecord, TrackRecord};
+use crate::track::LostReason;
 use glam::{Mat3, Vec3};
 use serde_json::{json, Value};
 use std::sync::Mutex;
@@ -21,8 +22,64 @@ pub fn encode(r: &FrameRecord) -> String {
         "extra": r.report.extra,
         "elements": r.total_elements,
         "vertices": r.total_vertices,
+        "track": r.track.as_ref().map(track_json),
     })
     .to_string()
+}
+
+fn track_json(t: &TrackRecord) -> Value {
+    let lost = t.lost.map(|l| match l {
+        LostReason::EmptyModel => json!(["empty_model", 0.0]),
+        LostReason::FewInliers(x) => json!(["few_inliers", x]),
+        LostReason::LargeError(x) => json!(["large_error", x]),
+        LostReason::Ambiguous(n) => json!(["ambiguous", n]),
+        LostReason::Jump(x) => json!(["jump", x]),
+    });
+    json!({
+        "ms": t.ms,
+        "inlier_fraction": t.inlier_fraction,
+        "residual_mm": t.residual_mm,
+        "conditioning": t.conditioning,
+        "iterations": t.iterations,
+        "weak_directions": t.weak_directions,
+        "weak_axes": t.weak_axes,
+        "relocalised": t.relocalised,
+        "lost": lost,
+    })
+}
+
+fn track_from(v: &Value) -> Result<TrackRecord, String> {
+    let number = |k: &str| v[k].as_f64().ok_or_else(|| format!("track: no {k}"));
+    let small = |k: &str| {
+        v[k].as_u64()
+            .and_then(|n| u8::try_from(n).ok())
+            .ok_or_else(|| format!("track: no {k}"))
+    };
+    let lost = match &v["lost"] {
+        Value::Null => None,
+        l => {
+            let x = l[1].as_f64().ok_or("track: lost without a value")?;
+            Some(match l[0].as_str() {
+                Some("empty_model") => LostReason::EmptyModel,
+                Some("few_inliers") => LostReason::FewInliers(x),
+                Some("large_error") => LostReason::LargeError(x),
+                Some("ambiguous") => LostReason::Ambiguous(x as u8),
+                Some("jump") => LostReason::Jump(x as f32),
+                _ => return Err("track: unknown reason".into()),
+            })
+        }
+    };
+    Ok(TrackRecord {
+        ms: number("ms")?,
+        inlier_fraction: number("inlier_fraction")?,
+        residual_mm: number("residual_mm")?,
+        conditioning: number("conditioning")?,
+        iterations: v["iterations"].as_u64().ok_or("track: no iterations")? as usize,
+        weak_directions: small("weak_directions")?,
+        weak_axes: small("weak_axes")?,
+        relocalised: v["relocalised"].as_bool().ok_or("track: no relocalised")?,
+        lost,
+    })
 }
 
 /// The record in `bytes`.
@@ -60,11 +117,15 @@ pub fn decode(bytes: &[u8]) -> Result<FrameRecord, String> {
         },
         total_elements: count("elements")?,
         total_vertices: v["vertices"].as_u64().map(|n| n as usize),
-        track: None,
+        track: match &v["track"] {
+            Value::Null => None,
+            t => Some(track_from(t)?),
+        },
     })
 }
 
-fn pose_array(p: &Pose) -> [f32; 12] {
+/// A pose as 12 numbers: rotation columns, then the camera centre.
+pub fn pose_array(p: &Pose) -> [f32; 12] {
     let r = p.rotation.to_cols_array();
     let t = p.translation;
     [
@@ -72,7 +133,8 @@ fn pose_array(p: &Pose) -> [f32; 12] {
     ]
 }
 
-fn pose_from(v: &Value) -> Result<Pose, String> {
+/// The pose of [`pose_array`]'s numbers.
+pub fn pose_from(v: &Value) -> Result<Pose, String> {
     let a: Vec<f32> = v
         .as_array()
         .filter(|a| a.len() == 12)
@@ -126,6 +188,21 @@ mod tests {
         };
         let back = decode(encode(&r).as_bytes()).unwrap();
         assert_eq!(back, r);
+        let tracked = FrameRecord {
+            track: Some(TrackRecord {
+                ms: 2.5,
+                inlier_fraction: 0.87,
+                residual_mm: 3.1,
+                conditioning: 0.02,
+                iterations: 14,
+                weak_directions: 1,
+                weak_axes: 4,
+                relocalised: true,
+                lost: Some(LostReason::Jump(0.41)),
+            }),
+            ..r
+        };
+        assert_eq!(decode(encode(&tracked).as_bytes()).unwrap(), tracked);
         assert!(decode(b"{\"frame\": 1}").is_err());
     }
 }

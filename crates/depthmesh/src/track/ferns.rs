@@ -136,6 +136,30 @@ impl Keyframes {
         })
     }
 
+    /// The keyframes learnt, to save: their codes back to back, and poses.
+    pub fn saved(&self) -> (&[u8], &[Pose]) {
+        (&self.codes, &self.poses)
+    }
+
+    /// Puts back keyframes from [`Keyframes::saved`]; codes of the wrong
+    /// length for this configuration are an error.
+    pub fn restore(&mut self, codes: Vec<u8>, poses: Vec<Pose>) -> Result<()> {
+        if codes.len() != poses.len() * self.config.ferns {
+            return Err(crate::error::Error::parameter(
+                "keyframes",
+                format!(
+                    "{} code bytes for {} keyframes of {} ferns",
+                    codes.len(),
+                    poses.len(),
+                    self.config.ferns
+                ),
+            ));
+        }
+        self.codes = codes;
+        self.poses = poses;
+        Ok(())
+    }
+
     /// Keyframes learnt so far.
     pub fn len(&self) -> usize {
         self.poses.len()

@@ -21,4 +21,4 @@ pub mod icp;
 pub mod pyramid;
 pub mod tracker;
 
-pub use tracker::{LostReason, Tracked, Tracker, TrackerConfig};
+pub use tracker::{LostReason, Tracked, Tracker, TrackerConfig, TrackerState};

@@ -291,6 +291,23 @@ enum Search {
     Relocalise,
 }
 
+/// What a [`Tracker`] carries from frame to frame.
+#[derive(Clone, Debug, PartialEq)]
+pub struct TrackerState {
+    /// The last pose tracked successfully.
+    pub last_good: Pose,
+    /// Motion between the last two good frames.
+    pub velocity: Pose,
+    /// Frames lost since the last good one.
+    pub lost_streak: usize,
+    /// Whether `velocity` was measured.
+    pub velocity_known: bool,
+    /// Relocalisation keyframes: fern codes back to back.
+    pub keyframe_codes: Vec<u8>,
+    /// Their poses.
+    pub keyframe_poses: Vec<Pose>,
+}
+
 /// Frame-to-model ICP tracker with a constant-velocity motion model and
 /// keyframe relocalisation.
 #[derive(Debug)]
@@ -349,6 +366,35 @@ impl Tracker {
             lost_streak: 0,
             velocity_known: false,
         })
+    }
+
+    /// What the tracker carries from frame to frame, to save and restore
+    /// (the rest is made again from each frame and the map).
+    pub fn state(&self) -> TrackerState {
+        let (codes, poses) = self.keyframes.saved();
+        TrackerState {
+            last_good: self.last_good,
+            velocity: self.velocity,
+            lost_streak: self.lost_streak,
+            velocity_known: self.velocity_known,
+            keyframe_codes: codes.to_vec(),
+            keyframe_poses: poses.to_vec(),
+        }
+    }
+
+    /// A tracker that goes on from `state` (see [`Tracker::state`]).
+    pub fn restore(
+        config: TrackerConfig,
+        intrinsics: Intrinsics,
+        state: TrackerState,
+    ) -> Result<Self> {
+        let mut t = Tracker::new(config, intrinsics, state.last_good)?;
+        t.velocity = state.velocity;
+        t.lost_streak = state.lost_streak;
+        t.velocity_known = state.velocity_known;
+        t.keyframes
+            .restore(state.keyframe_codes, state.keyframe_poses)?;
+        Ok(t)
     }
 
     /// The last pose that was tracked successfully (or the start).

@@ -113,6 +113,17 @@ impl TsdfMapper {
         Ok(())
     }
 
+    /// The pose and depth of the last fused frame (ray casting for
+    /// tracking starts from it), to save.
+    pub fn last_view(&self) -> Option<&(Pose, DepthImage)> {
+        self.last_view.as_ref()
+    }
+
+    /// Puts back a saved [`TsdfMapper::last_view`].
+    pub fn set_last_view(&mut self, view: (Pose, DepthImage)) {
+        self.last_view = Some(view);
+    }
+
     /// The fused volume.
     pub fn volume(&self) -> &TsdfVolume {
         &self.volume
