@@ -134,7 +134,7 @@ impl RunExportArgs {
 /// Flags of `depthmesh export`.
 #[derive(Args, Debug, Clone)]
 pub struct ExportArgs {
-    /// Input mesh (PLY, OBJ or GLB).
+    /// Input mesh (PLY, OBJ or GLB), or a map store (`reconstruct --store`).
     pub input: PathBuf,
     /// Output file (for OBJ and PLY with several chunks, the stem of one file per chunk).
     #[arg(short, long)]
@@ -144,6 +144,15 @@ pub struct ExportArgs {
     pub format: Option<FormatArg>,
     #[command(flatten)]
     pub assets: AssetArgs,
+}
+
+/// The mesh in `path`: a mesh file, or the map of a store (`--store`) at
+/// its last checkpoint.
+pub fn read_input(path: &std::path::Path) -> Result<depthmesh::mesh::Mesh> {
+    if depthmesh::store::is_store(path) {
+        return Ok(depthmesh::store::mesh(path)?);
+    }
+    read_mesh(path).with_context(|| format!("cannot read the input mesh {}", path.display()))
 }
 
 /// Runs `export`.
@@ -168,8 +177,7 @@ pub fn run(args: &ExportArgs, quiet: bool) -> Result<()> {
         None => Format::of_path(&args.out)?,
     };
     let options = args.assets.options(format)?;
-    let mesh = read_mesh(&args.input)
-        .with_context(|| format!("cannot read the input mesh {}", args.input.display()))?;
+    let mesh = read_input(&args.input)?;
     let report = write(&mesh, &args.out, &options)?;
     if !quiet {
         eprintln!("{}", describe(&report));

@@ -1,8 +1,8 @@
 //! `depthmesh simplify`: quadric edge collapse of a mesh file.
 
-use anyhow::{Context, Result};
+use anyhow::Result;
 use clap::Args;
-use depthmesh::mesh::io::{read_mesh, write_mesh};
+use depthmesh::mesh::io::write_mesh;
 use depthmesh::mesh::simplify::{simplify, SimplifyParams, Target};
 use std::path::PathBuf;
 use std::time::Instant;
@@ -10,7 +10,7 @@ use std::time::Instant;
 /// Flags of `depthmesh simplify`.
 #[derive(Args, Debug, Clone)]
 pub struct SimplifyArgs {
-    /// Input mesh (PLY, OBJ or GLB).
+    /// Input mesh (PLY, OBJ or GLB), or a map store (`reconstruct --store`).
     pub input: PathBuf,
     /// Output mesh; the format follows the extension (.ply, .obj, .glb).
     #[arg(short, long)]
@@ -49,8 +49,7 @@ impl SimplifyArgs {
 pub fn run(args: &SimplifyArgs, quiet: bool) -> Result<()> {
     let params = args.params();
     params.validate()?;
-    let mesh = read_mesh(&args.input)
-        .with_context(|| format!("cannot read the input mesh {}", args.input.display()))?;
+    let mesh = crate::export::read_input(&args.input)?;
     let start = Instant::now();
     let result = simplify(&mesh, &params)?;
     let seconds = start.elapsed().as_secs_f64();

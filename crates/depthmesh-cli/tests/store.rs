@@ -25,7 +25,7 @@ fn reconstruct(frames: &Path, out: &Path, extra: &[&str], track: bool) -> Comman
     .args(extra)
     .args(if track { &["--track"][..] } else { &[] })
     .stdout(Stdio::null())
-    .stderr(Stdio::null());
+    .stderr(Stdio::piped());
     c
 }
 
@@ -82,7 +82,9 @@ fn killed_and_resumed(dir: &Path, frames: &Path, track: bool) {
         match child.try_wait().unwrap() {
             Some(status) => {
                 // Finished before the kill: nothing more to interrupt.
-                assert!(status.success());
+                let mut err = String::new();
+                std::io::Read::read_to_string(&mut child.stderr.take().unwrap(), &mut err).unwrap();
+                assert!(status.success(), "{err}");
                 break;
             }
             None => {
@@ -115,6 +117,25 @@ fn killed_and_resumed(dir: &Path, frames: &Path, track: bool) {
     assert_eq!(info["frames"], FRAMES);
     assert_eq!(info["tracked"], track, "{info}");
     assert!(info["blocks"].as_u64().unwrap() > 0);
+    // The store exports as the mesh the run wrote does.
+    let exported = |input: &Path, name: &str| -> usize {
+        let glb = dir.join(name);
+        ok(&depthmesh(&[
+            "export",
+            input.to_str().unwrap(),
+            "-o",
+            glb.to_str().unwrap(),
+            "--quiet",
+        ]));
+        depthmesh::mesh::glb::read_glb(&glb)
+            .unwrap()
+            .iter()
+            .map(|m| m.mesh.triangle_count())
+            .sum()
+    };
+    let from_store = exported(&store, "from-store.glb");
+    assert!(from_store > 0);
+    assert_eq!(from_store, exported(&run.join("mesh.ply"), "from-mesh.glb"));
 }
 
 #[test]

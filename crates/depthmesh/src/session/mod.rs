@@ -175,6 +175,8 @@ impl Session {
         match (saved.poses, session.poses.tracking()) {
             (Some(state), true) => session.poses.restore(state)?,
             (None, false) => {}
+            // Saved before its first frame: tracking starts afresh.
+            (None, true) if saved.records.is_empty() => {}
             _ => {
                 return Err(Error::parameter(
                     "tracking",

@@ -324,6 +324,42 @@ pub fn check_identity(path: &Path, saved: &Value, wanted: &Value) -> Result<()> 
     }
 }
 
+/// Whether the file at `path` is a map store (by its first bytes: those of
+/// every redb database).
+pub fn is_store(path: &Path) -> bool {
+    let mut head = [0u8; 9];
+    std::fs::File::open(path)
+        .and_then(|mut f| std::io::Read::read_exact(&mut f, &mut head))
+        .is_ok_and(|()| head == *b"redb\x1A\x0A\xA9\x0D\x0A")
+}
+
+/// The mesh of the map a store holds at its last checkpoint: what the run
+/// that wrote it would have written as `mesh.ply` had it ended there.
+pub fn mesh(path: &Path) -> Result<crate::mesh::Mesh> {
+    let (_, saved) = MapStore::open(path)?;
+    let id = &saved.identity;
+    let bad = |k: &str| Error::format(path, format!("identity: no {k}"));
+    let number = |k: &str| id[k].as_f64().ok_or_else(|| bad(k));
+    let weight = |k: &str| {
+        id[k]
+            .as_u64()
+            .and_then(|w| u16::try_from(w).ok())
+            .ok_or_else(|| bad(k))
+    };
+    let config = crate::tsdf::TsdfConfig {
+        voxel: number("voxel")? as f32,
+        truncation: number("truncation")? as f32,
+        max_weight: weight("max_weight")?,
+        color: id["color"].as_bool().ok_or_else(|| bad("color"))?,
+        min_weight: weight("min_weight")?,
+    };
+    let mut volume = crate::tsdf::TsdfVolume::new(config)?;
+    volume.restore(saved.session.blocks, saved.session.frames)?;
+    let mut cache = crate::tsdf::mesh::MeshCache::new(config.min_weight);
+    cache.update(&volume);
+    Ok(cache.assemble())
+}
+
 /// What a store holds, for `depthmesh info`: its identity, last checkpoint,
 /// blocks, records and file size.
 pub fn info(path: &Path) -> Result<Value> {
