@@ -113,6 +113,7 @@ pub fn run(args: &DemoArgs, quiet: bool) -> Result<()> {
             export: Default::default(),
             bounded: Default::default(),
             memory: Default::default(),
+            store: Default::default(),
         };
         out_dir::check(&sim.out, sim.force)?;
         let scene = simulate::load_scene(

@@ -9,7 +9,7 @@ use crate::out_dir::OutDir;
 use crate::progress;
 use crate::run::{conclude, report_event};
 use crate::status::StatusWriter;
-use crate::store::StoreArgs;
+use crate::store::{dataset_identity, StoreArgs};
 use anyhow::{bail, Context, Result};
 use clap::Args;
 use depthmesh::dataset::{Dataset, DatasetOptions};
@@ -85,7 +85,11 @@ pub fn run(args: &ReconstructArgs, quiet: bool) -> Result<()> {
         map,
         tracking: args.track.then(TrackerConfig::default),
     };
-    let (mut session, mut store, position) = args.store.open(config, &args.dataset, &dataset)?;
+    let (mut session, mut store, position) = args.store.open(
+        config,
+        || dataset_identity(&args.dataset, &dataset),
+        dataset.len(),
+    )?;
     args.map.bounded.note_reach(&session);
     let out = OutDir::prepare(&args.out, args.force || args.store.resume)?;
     let mut files = RunFiles::create(&args.out, &session)?;

@@ -8,6 +8,7 @@ use crate::out_dir::OutDir;
 use crate::planes::PlanesArgs;
 use crate::progress;
 use crate::run::{conclude, report_event};
+use crate::store::StoreArgs;
 use crate::views::{self, Dashboard, MapperView};
 use anyhow::{bail, Context, Result};
 use clap::{Args, ValueEnum};
@@ -112,6 +113,8 @@ pub struct SimulateArgs {
     pub bounded: ActiveRadiusArgs,
     #[command(flatten)]
     pub memory: MemoryArgs,
+    #[command(flatten)]
+    pub store: StoreArgs,
 }
 
 /// What a finished run reports to the caller (the demo's table).
@@ -175,13 +178,26 @@ pub fn run_scene(args: &SimulateArgs, scene: &Scene, quiet: bool) -> Result<RunS
     // No frame yet to measure: the far limit bounds the estimate.
     args.memory
         .check_map(&map, &sensor.intrinsics, poses.len(), None)?;
-    let mut session = Session::new(SessionConfig {
+    let config = SessionConfig {
         intrinsics: sensor.intrinsics,
         map,
         tracking: args.track.then(TrackerConfig::default),
-    })?;
+    };
+    // The simulator's noise depends only on the seed and the iteration, so
+    // a continued run sees the frames an uninterrupted one sees.
+    let source = || {
+        Ok(json!({
+            "scene": args.scene.display().to_string(),
+            "iterations": args.iterations,
+            "path": args.path.to_string(),
+            "noise": args.noise.to_string(),
+            "seed": args.seed,
+            "dynamic": args.dynamic,
+        }))
+    };
+    let (mut session, mut store, position) = args.store.open(config, source, poses.len())?;
     args.bounded.note_reach(&session);
-    let out = OutDir::prepare(&args.out, args.force)?;
+    let out = OutDir::prepare(&args.out, args.force || args.store.resume)?;
     let mut files = RunFiles::create(&args.out, &session)?;
     let mut dashboard = args
         .dashboard
@@ -199,7 +215,8 @@ pub fn run_scene(args: &SimulateArgs, scene: &Scene, quiet: bool) -> Result<RunS
     let bar = progress::bar(poses.len() as u64, scene.name.as_str(), quiet);
     let mut sensor_seconds = 0.0;
     let mut stopped = None;
-    for (i, truth) in poses.iter().enumerate() {
+    bar.inc(position as u64);
+    for (i, truth) in poses.iter().enumerate().skip(position) {
         let iteration = i as u32 + 1;
         let start = Instant::now();
         let frame = sensor.capture(scene, iteration, truth);
@@ -210,6 +227,7 @@ pub fn run_scene(args: &SimulateArgs, scene: &Scene, quiet: bool) -> Result<RunS
         report_event(&bar, iteration as usize, outcome.event);
         let new_triangles = outcome.record.report.new_elements;
         files.after_frame(&mut session)?;
+        store.after_frame(&session, i + 1)?;
         if let (Some(d), Some(view)) = (dashboard.as_mut(), mapper_view(&session, new_triangles)) {
             d.draw(iteration, scene, &frame.depth, &view, session.records())?;
         }
@@ -260,6 +278,7 @@ pub fn run_scene(args: &SimulateArgs, scene: &Scene, quiet: bool) -> Result<RunS
         );
     }
     summary.insert("sensor_seconds".into(), json!(sensor_seconds));
+    store.summarise(&mut summary)?;
     // null for an empty map: there is no surface to judge.
     for (key, tolerance) in [
         ("surface_within_5mm", 0.005),

@@ -19,13 +19,27 @@ pub struct StoreArgs {
     pub store: Option<PathBuf>,
     /// Commit a checkpoint every this many frames (about a second of a 30
     /// frames/s sensor).
-    #[arg(long, default_value_t = 30)]
+    #[arg(long, default_value_t = DEFAULT_CHECKPOINT_EVERY)]
     pub checkpoint_every: u32,
     /// Continue the run whose store --store names from its last checkpoint
     /// (same settings and dataset; --out is replaced).
     #[arg(long, requires = "store")]
     pub resume: bool,
 }
+
+impl Default for StoreArgs {
+    /// No store (the flags' defaults).
+    fn default() -> Self {
+        StoreArgs {
+            store: None,
+            checkpoint_every: DEFAULT_CHECKPOINT_EVERY,
+            resume: false,
+        }
+    }
+}
+
+/// Frames between checkpoints unless told: about a second of a sensor.
+const DEFAULT_CHECKPOINT_EVERY: u32 = 30;
 
 /// The store of a run, if it has one, and what its checkpoints cost.
 pub struct StoreRun {
@@ -42,17 +56,19 @@ pub struct StoreRun {
 
 impl StoreArgs {
     /// The session to run (continued from the store with --resume), its
-    /// store, and the position in `dataset`'s selection to read from.
+    /// store, and how many of the run's `total` frames to skip. `source`
+    /// says where the frames come from (see [`dataset_identity`]): a store
+    /// is continued only on the frames it was written from.
     pub fn open(
         &self,
         config: SessionConfig,
-        dataset_path: &Path,
-        dataset: &Dataset,
+        source: impl FnOnce() -> Result<Value>,
+        total: usize,
     ) -> Result<(Session, StoreRun, usize)> {
         let mut run = StoreRun {
             store: None,
             every: self.checkpoint_every,
-            total: dataset.len(),
+            total,
             since: 0,
             checkpoints: 0,
             blocks: 0,
@@ -66,7 +82,7 @@ impl StoreArgs {
         if self.checkpoint_every == 0 {
             bail!("--checkpoint-every must be at least 1");
         }
-        let identity = store::identity(&config, dataset_identity(dataset_path, dataset)?)
+        let identity = store::identity(&config, source()?)
             .with_context(|| format!("--store {}", path.display()))?;
         if !self.resume {
             run.store = Some(MapStore::create(path, &identity)?);
@@ -74,12 +90,11 @@ impl StoreArgs {
         }
         let (opened, saved) = MapStore::open(path)?;
         store::check_identity(path, &saved.identity, &identity)?;
-        if saved.position > dataset.len() {
+        if saved.position > total {
             bail!(
-                "--store {}: it has read {} frames but the dataset selects {}",
+                "--store {}: it has read {} frames but the run has {total}",
                 path.display(),
                 saved.position,
-                dataset.len()
             );
         }
         let position = saved.position;
@@ -132,9 +147,8 @@ impl StoreRun {
     }
 }
 
-/// Where a run's frames come from, so that a store is continued only on
-/// the frames it was written from.
-fn dataset_identity(path: &Path, dataset: &Dataset) -> Result<Value> {
+/// Where a run's frames come from: a dataset's folder and selection.
+pub fn dataset_identity(path: &Path, dataset: &Dataset) -> Result<Value> {
     let path = path
         .canonicalize()
         .with_context(|| format!("{}", path.display()))?;

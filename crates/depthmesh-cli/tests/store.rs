@@ -11,6 +11,7 @@ use std::process::{Command, Stdio};
 use std::time::{Duration, Instant};
 
 const FRAMES: u32 = 60;
+const TABLE: &str = concat!(env!("CARGO_MANIFEST_DIR"), "/../../scenes/table.toml");
 
 fn reconstruct(frames: &Path, out: &Path, extra: &[&str], track: bool) -> Command {
     let mut c = Command::new(env!("CARGO_BIN_EXE_depthmesh"));
@@ -52,19 +53,50 @@ fn a_run_killed_and_resumed_ends_as_one_never_interrupted() {
     std::fs::create_dir_all(&frames).unwrap();
     simulated_frames_folder(&frames, FRAMES);
     for track in [false, true] {
-        killed_and_resumed(&dir.join(format!("track-{track}")), &frames, track);
+        let make = |out: &Path, extra: &[&str]| reconstruct(&frames, out, extra, track);
+        killed_and_resumed(&dir.join(format!("track-{track}")), make, FRAMES, track);
     }
     std::fs::remove_dir_all(dir).unwrap();
 }
 
-/// Kills `reconstruct --store` at seeded points (at most four times),
-/// resumes it to the end, and compares with a run never interrupted.
-fn killed_and_resumed(dir: &Path, frames: &Path, track: bool) {
+#[test]
+fn a_simulated_run_killed_and_resumed_sees_the_same_noisy_frames() {
+    let dir = scratch("store-simulate");
+    let make = |out: &Path, extra: &[&str]| {
+        let mut c = Command::new(env!("CARGO_BIN_EXE_depthmesh"));
+        c.args([
+            "simulate", "--scene", TABLE, "--map", "tsdf", "--voxel", "0.02",
+        ])
+        .args([
+            "--noise",
+            "kinect",
+            "--seed",
+            "7",
+            "--iterations",
+            "24",
+            "--track",
+        ])
+        .args(["--quiet", "--out", out.to_str().unwrap()])
+        .args(extra)
+        .stdout(Stdio::null())
+        .stderr(Stdio::piped());
+        c
+    };
+    killed_and_resumed(&dir, make, 24, true);
+    std::fs::remove_dir_all(dir).unwrap();
+}
+
+/// Kills a run with `--store` (made by `make(out, extra flags)`) at seeded
+/// points, at most four times, resumes it to the end, and compares with a
+/// run never interrupted.
+fn killed_and_resumed(
+    dir: &Path,
+    make: impl Fn(&Path, &[&str]) -> Command,
+    frames: u32,
+    track: bool,
+) {
     let reference = dir.join("reference");
-    assert!(reconstruct(frames, &reference, &[], track)
-        .status()
-        .unwrap()
-        .success());
+    assert!(make(&reference, &[]).status().unwrap().success());
     let store = dir.join("map.store");
     let run = dir.join("run");
     // A small linear congruential generator: the same kill points every
@@ -73,9 +105,7 @@ fn killed_and_resumed(dir: &Path, frames: &Path, track: bool) {
     let mut kills = 0;
     let deadline = Instant::now() + Duration::from_secs(120);
     while kills < 4 && Instant::now() < deadline {
-        let mut child = reconstruct(frames, &run, &store_args(&store), track)
-            .spawn()
-            .unwrap();
+        let mut child = make(&run, &store_args(&store)).spawn().unwrap();
         seed = seed.wrapping_mul(6_364_136_223_846_793_005).wrapping_add(1);
         // Within the first 180 ms: a whole run takes about 200 ms here.
         std::thread::sleep(Duration::from_millis(20 + (seed >> 33) % 160));
@@ -95,10 +125,7 @@ fn killed_and_resumed(dir: &Path, frames: &Path, track: bool) {
         }
     }
     assert!(kills > 0, "the run always finished before it was killed");
-    assert!(reconstruct(frames, &run, &store_args(&store), track)
-        .status()
-        .unwrap()
-        .success());
+    assert!(make(&run, &store_args(&store)).status().unwrap().success());
     for file in ["mesh.ply", "trajectory.txt"] {
         assert!(
             std::fs::read(run.join(file)).unwrap() == std::fs::read(reference.join(file)).unwrap(),
@@ -108,13 +135,13 @@ fn killed_and_resumed(dir: &Path, frames: &Path, track: bool) {
     let stats = std::fs::read_to_string(run.join("stats.csv")).unwrap();
     assert_eq!(
         stats.lines().count(),
-        FRAMES as usize + 1,
+        frames as usize + 1,
         "a row per frame"
     );
     let info = depthmesh(&["info", store.to_str().unwrap()]);
     ok(&info);
     let info: serde_json::Value = serde_json::from_slice(&info.stdout).unwrap();
-    assert_eq!(info["frames"], FRAMES);
+    assert_eq!(info["records"], frames);
     assert_eq!(info["tracked"], track, "{info}");
     assert!(info["blocks"].as_u64().unwrap() > 0);
     // The store exports as the mesh the run wrote does.
