@@ -176,49 +176,18 @@ fn a_damaged_store_or_other_settings_are_refused() {
     let out = dir.join("out");
     let o = out.to_str().unwrap();
     let f = frames.to_str().unwrap();
-    ok(&depthmesh(&[
-        "reconstruct",
-        f,
-        "--voxel",
-        "0.02",
-        "--quiet",
-        "--out",
-        o,
-        "--store",
-        s,
-    ]));
+    // `reconstruct` of the frames into --out with the store, at `voxel`.
+    let run = |voxel: &str, extra: &[&str]| {
+        let mut args = vec!["reconstruct", f, "--voxel", voxel, "--quiet", "--out", o];
+        args.extend(["--store", s]);
+        args.extend(extra);
+        depthmesh(&args)
+    };
+    ok(&run("0.02", &[]));
     // Another voxel size: the store says which setting differs.
-    assert_fails_with(
-        &depthmesh(&[
-            "reconstruct",
-            f,
-            "--voxel",
-            "0.03",
-            "--quiet",
-            "--out",
-            o,
-            "--store",
-            s,
-            "--resume",
-        ]),
-        &["voxel"],
-    );
+    assert_fails_with(&run("0.03", &["--resume"]), &["voxel"]);
     // A store is not overwritten by a run that does not continue it.
-    assert_fails_with(
-        &depthmesh(&[
-            "reconstruct",
-            f,
-            "--voxel",
-            "0.02",
-            "--quiet",
-            "--out",
-            o,
-            "--force",
-            "--store",
-            s,
-        ]),
-        &["--resume"],
-    );
+    assert_fails_with(&run("0.02", &["--force"]), &["--resume"]);
     // Truncated, or overwritten in the middle: refused, naming the file.
     let bytes = std::fs::read(&store).unwrap();
     std::fs::write(&store, &bytes[..bytes.len() / 3]).unwrap();
@@ -228,21 +197,7 @@ fn a_damaged_store_or_other_settings_are_refused() {
         *b = 0xA5;
     }
     std::fs::write(&store, &damaged).unwrap();
-    assert_fails_with(
-        &depthmesh(&[
-            "reconstruct",
-            f,
-            "--voxel",
-            "0.02",
-            "--quiet",
-            "--out",
-            o,
-            "--store",
-            s,
-            "--resume",
-        ]),
-        &["map.store"],
-    );
+    assert_fails_with(&run("0.02", &["--resume"]), &["map.store"]);
     std::fs::write(&store, b"not a store").unwrap();
     assert_fails_with(&depthmesh(&["info", s]), &["not a store"]);
     std::fs::remove_dir_all(dir).unwrap();
