@@ -239,15 +239,7 @@ pub fn extract_sets(volume: &TsdfVolume, sets: &[Vec<IVec3>], min_weight: u16) -
     let (pieces, _) = mesh_owners(volume, &all, min_weight);
     sets.par_iter()
         .map(|keys| {
-            let mut owners: Vec<IVec3> = keys
-                .iter()
-                .flat_map(|&k| {
-                    (0..8).map(move |d| k + IVec3::new(d & 1, (d >> 1) & 1, (d >> 2) & 1))
-                })
-                .filter(|k| pieces.contains_key(k))
-                .collect();
-            owners.sort_unstable_by_key(|k| (k.x, k.y, k.z));
-            owners.dedup();
+            let owners = owners_of(keys, |k| pieces.contains_key(k));
             let mut mesh = join(&pieces, &owners, keys);
             mesh.remove_unreferenced_vertices();
             mesh
@@ -262,18 +254,25 @@ fn mesh_owners(
     keys: &[IVec3],
     min_weight: u16,
 ) -> (KeyMap<BlockMesh>, Vec<IVec3>) {
-    let mut owners: Vec<IVec3> = keys
-        .iter()
-        .flat_map(|&k| (0..8).map(move |d| k + IVec3::new(d & 1, (d >> 1) & 1, (d >> 2) & 1)))
-        .filter(|k| volume.index().contains_key(k))
-        .collect();
-    owners.sort_unstable_by_key(|k| (k.x, k.y, k.z));
-    owners.dedup();
+    let owners = owners_of(keys, |k| volume.index().contains_key(k));
     let pieces: KeyMap<BlockMesh> = owners
         .par_iter()
         .map(|&key| (key, mesh_block(volume, key, min_weight.max(1))))
         .collect();
     (pieces, owners)
+}
+
+/// The blocks that own vertices of the blocks `keys` (each, and its seven
+/// neighbours above) among those `held`, in key order.
+fn owners_of(keys: &[IVec3], held: impl Fn(&IVec3) -> bool) -> Vec<IVec3> {
+    let mut owners: Vec<IVec3> = keys
+        .iter()
+        .flat_map(|&k| (0..8).map(move |d| k + IVec3::new(d & 1, (d >> 1) & 1, (d >> 2) & 1)))
+        .filter(|k| held(k))
+        .collect();
+    owners.sort_unstable_by_key(|k| (k.x, k.y, k.z));
+    owners.dedup();
+    owners
 }
 
 fn sorted_keys<V>(map: &KeyMap<V>) -> Vec<IVec3> {
