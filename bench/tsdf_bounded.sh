@@ -1,11 +1,16 @@
 #!/usr/bin/env bash
-# Bounded memory on a long walk: the simulated sensor walks LENGTH metres down
-# a corridor (floor, a wall, boxes and posts; generated here) and the TSDF map
-# is built twice, without and with --active-radius. Reports the peak resident
-# memory of each run (/usr/bin/time -v), the blocks held, the chunks written,
-# and whether the bounded run's mesh.ply (chunks joined with the rest) holds
-# exactly the unbounded run's triangles, whole vertex records compared
-# (position, normal and colour bytes).
+# Bounded memory on long walks: the simulated sensor walks down a corridor
+# (floor, a wall, boxes and posts; generated here), once straight for LENGTH
+# metres and once there and back (LENGTH/2 out, then it turns round and walks
+# back past what it saw). Each walk's TSDF map is built three times: without
+# bounds, with --active-radius (freed blocks meshed into chunks), and with
+# --active-radius and --store (freed blocks kept in the store and brought back
+# when the camera returns). Reports the peak resident memory of each run
+# (/usr/bin/time -v), the blocks held, freed and brought back, the chunks
+# written, and whether each bounded run's mesh.ply (chunks joined with the
+# rest) holds exactly the unbounded run's triangles, whole vertex records
+# compared (position, normal and colour bytes). Without a store the
+# there-and-back walk cannot match: the region it returns to starts empty.
 #
 # Usage: bench/tsdf_bounded.sh [LENGTH] [VOXEL] [RADIUS]     (defaults 60, 0.02, reach + 0.1)
 set -euo pipefail
@@ -20,7 +25,7 @@ fi
 cargo build --release --quiet
 work=$(mktemp -d)
 trap 'rm -rf "$work"' EXIT
-# Scene and a straight walk looking ahead to the wall (TUM camera-to-world poses).
+# Scene and the two walks looking ahead to the wall (TUM camera-to-world poses).
 python3 - "$length" "$work" <<'PY'
 import math, sys
 length, work = float(sys.argv[1]), sys.argv[2]
@@ -37,34 +42,44 @@ def norm(v):
     n = math.sqrt(sum(c * c for c in v)); return [c / n for c in v]
 def cross(a, b):
     return [a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2], a[0] * b[1] - a[1] * b[0]]
-z = norm([0.7, -0.5, 1.0]); x = norm(cross(z, [0, 1, 0])); y = cross(z, x)
-m = [[x[i], y[i], z[i]] for i in range(3)]  # columns: camera axes in world (x right, y down, z ahead)
-w = math.sqrt(max(0.0, 1 + m[0][0] + m[1][1] + m[2][2])) / 2
-q = [(m[2][1] - m[1][2]) / (4 * w), (m[0][2] - m[2][0]) / (4 * w), (m[1][0] - m[0][1]) / (4 * w), w]
+def looking(ahead):
+    """Quaternion (x, y, z, w) of a camera looking along `ahead` (x right, y down, z ahead)."""
+    z = norm(ahead); x = norm(cross(z, [0, 1, 0])); y = cross(z, x)
+    m = [[x[i], y[i], z[i]] for i in range(3)]  # columns: camera axes in world
+    w = math.sqrt(max(0.0, 1 + m[0][0] + m[1][1] + m[2][2])) / 2
+    return [(m[2][1] - m[1][2]) / (4 * w), (m[0][2] - m[2][0]) / (4 * w), (m[1][0] - m[0][1]) / (4 * w), w]
+out, back = looking([0.7, -0.5, 1.0]), looking([-0.7, -0.5, 1.0])
 frames = int(length / 0.1)
-with open(f"{work}/walk.txt", "w") as f:
+with open(f"{work}/straight.txt", "w") as f:
     for i in range(frames):
-        f.write(f"{i} {0.1 * i} 1.3 -0.5 {q[0]} {q[1]} {q[2]} {q[3]}\n")
+        f.write(f"{i} {0.1 * i} 1.3 -0.5 {' '.join(map(str, out))}\n")
+with open(f"{work}/there-and-back.txt", "w") as f:
+    half = frames // 2
+    for i in range(frames):
+        x, q = (0.1 * i, out) if i < half else (0.1 * (2 * half - 1 - i), back)
+        f.write(f"{i} {x} 1.3 -0.5 {' '.join(map(str, q))}\n")
 
 PY
-frames=$(wc -l < "$work/walk.txt")
+frames=$(wc -l < "$work/straight.txt")
 run() {
-  local name=$1; shift
+  local walk=$1 name=$2; shift 2
   /usr/bin/time -v ./target/release/depthmesh simulate --scene "$work/corridor.toml" --map tsdf \
-    --voxel "$voxel" --path "tum:$work/walk.txt" --iterations "$frames" --quiet --out "$work/$name" "$@" \
-    2> "$work/$name.time"
-  grep "Maximum resident" "$work/$name.time" | awk '{print $NF}'
+    --voxel "$voxel" --path "tum:$work/$walk.txt" --iterations "$frames" --quiet --out "$work/$walk-$name" "$@" \
+    2> "$work/$walk-$name.time" || { cat "$work/$walk-$name.time" >&2; exit 1; }
+  grep "Maximum resident" "$work/$walk-$name.time" | awk '{print $NF}' > "$work/$walk-$name.rss"
 }
-rss_full=$(run unbounded)
 if [[ -z $radius ]]; then
   # The simulated Kinect's reach: 4 m along its corner rays (640×480, 60° vertical), plus the truncation.
   radius=$(python3 -c "import math; t = math.tan(math.radians(30)); print(round(4 * math.sqrt(1 + t * t + (t * 4 / 3) ** 2) + 4 * $voxel + 0.1, 3))")
 fi
-rss_bounded=$(run bounded --active-radius "$radius")
-python3 - "$work" "$rss_full" "$rss_bounded" "$length" "$voxel" <<'PY'
-import json, struct, sys
-work, rss_full, rss_bounded, length, voxel = sys.argv[1], int(sys.argv[2]), int(sys.argv[3]), sys.argv[4], sys.argv[5]
-full = json.load(open(f"{work}/unbounded/summary.json")); bounded = json.load(open(f"{work}/bounded/summary.json"))
+for walk in straight there-and-back; do
+  run "$walk" unbounded
+  run "$walk" bounded --active-radius "$radius"
+  run "$walk" store --active-radius "$radius" --store "$work/$walk.store"
+done
+python3 - "$work" "$length" "$voxel" <<'PY'
+import json, os, struct, sys
+work, length, voxel = sys.argv[1], sys.argv[2], sys.argv[3]
 SIZES = {"char": 1, "uchar": 1, "int8": 1, "uint8": 1, "short": 2, "ushort": 2, "int16": 2, "uint16": 2,
          "int": 4, "uint": 4, "int32": 4, "uint32": 4, "float": 4, "float32": 4, "double": 8, "float64": 8}
 FORMATS = {1: "B", 2: "H", 4: "I"}
@@ -97,10 +112,25 @@ def triangles(path):
         out.append(t[k:] + t[:k])
     out.sort()
     return out
-same = triangles(f"{work}/unbounded/mesh.ply") == triangles(f"{work}/bounded/mesh.ply")
-print(f"walk {length} m, {full['frames']} frames, voxel {voxel} m")
-print(f"unbounded  peak RSS {rss_full / 1024:7.1f} MB   blocks {full['map_bytes'] // (512 * 4)}   triangles {full['triangles']}   {full['fps']:.1f} frames/s")
-print(f"bounded    peak RSS {rss_bounded / 1024:7.1f} MB   peak blocks {bounded['peak_blocks']}   evicted {bounded['evicted_blocks']}   "
-      f"chunks {bounded['chunks']}   triangles {bounded['triangles']}   {bounded['fps']:.1f} frames/s   (radius {bounded['active_radius']:.2f} m)")
-print(f"union of chunks + rest == unbounded mesh (exact triangles, whole vertex records): {same}")
+for walk in ["straight", "there-and-back"]:
+    runs = {}
+    for name in ["unbounded", "bounded", "store"]:
+        summary = json.load(open(f"{work}/{walk}-{name}/summary.json"))
+        rss = int(open(f"{work}/{walk}-{name}.rss").read()) / 1024
+        runs[name] = (summary, rss)
+    full, rss = runs["unbounded"]
+    truth = triangles(f"{work}/{walk}-unbounded/mesh.ply")
+    print(f"{walk} walk, {length} m, {full['frames']} frames, voxel {voxel} m")
+    print(f"  unbounded     peak RSS {rss:7.1f} MB   blocks {full['map_bytes'] // (512 * 4):6d}   "
+          f"triangles {full['triangles']}   {full['fps']:.1f} frames/s")
+    for name, label in [("bounded", "bounded"), ("store", "bounded+store")]:
+        s, rss = runs[name]
+        same = triangles(f"{work}/{walk}-{name}/mesh.ply") == truth
+        extra = ""
+        if name == "store":
+            size = os.path.getsize(f"{work}/{walk}.store")
+            extra = f"   brought back {s.get('loaded_blocks', 0)}   store {size / 1e6:.1f} MB"
+        print(f"  {label:13s} peak RSS {rss:7.1f} MB   peak blocks {s['peak_blocks']:6d}   freed {s['evicted_blocks']}{extra}   "
+              f"chunks {s['chunks']}   triangles {s['triangles']}   {s['fps']:.1f} frames/s   (radius {s['active_radius']:.2f} m)")
+        print(f"    mesh.ply == unbounded mesh (exact triangles, whole vertex records): {same}")
 PY

@@ -2,7 +2,9 @@
 //! Blocks the camera left behind are written to `OUT/chunks/chunk-NNNNNN.ply`
 //! (at most 65,535 vertices each, global coordinates) and freed; at the end
 //! `mesh.ply` is the chunks joined with the blocks still in memory (see
-//! `depthmesh::session::run_files`).
+//! `depthmesh::session::run_files`). With `--store`, freed blocks go to the
+//! store instead and come back when the camera returns; the chunks and
+//! `mesh.ply` are then made from the store and memory at the end.
 
 use crate::export::RunExportArgs;
 use anyhow::{bail, Result};

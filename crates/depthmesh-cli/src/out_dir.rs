@@ -7,7 +7,18 @@ use anyhow::{bail, Context, Result};
 use std::path::{Path, PathBuf};
 
 /// Files by which a folder is known to hold a run's output.
-const RUN_FILES: &[&str] = &["summary.json", "mesh.ply", "stats.csv", "trajectory.txt"];
+const RUN_FILES: &[&str] = &[
+    MARK,
+    "summary.json",
+    "mesh.ply",
+    "stats.csv",
+    "trajectory.txt",
+];
+
+/// An empty file made first in every run's folder: a run killed before it
+/// wrote any of its files (say, to continue it from its store) still left a
+/// folder known as a run's.
+const MARK: &str = ".depthmesh-run";
 
 /// A run's output folder, removed again unless [`OutDir::keep`] is called.
 #[derive(Debug)]
@@ -55,6 +66,8 @@ impl OutDir {
                 .with_context(|| format!("--out {}: cannot replace it", path.display()))?;
         }
         std::fs::create_dir_all(path).with_context(|| format!("--out {}", path.display()))?;
+        std::fs::write(path.join(MARK), b"")
+            .with_context(|| format!("--out {}", path.display()))?;
         Ok(OutDir {
             path: path.to_path_buf(),
             kept: false,

@@ -14,7 +14,9 @@ use std::path::{Path, PathBuf};
 #[derive(Args, Debug, Clone)]
 pub struct StoreArgs {
     /// Write the map to this store (one file) in checkpoints, to continue
-    /// it with --resume after a crash (TSDF maps for now).
+    /// it with --resume after a crash (TSDF maps for now). With
+    /// --active-radius, blocks the camera leaves go to the store and come
+    /// back when it returns.
     #[arg(long)]
     pub store: Option<PathBuf>,
     /// Commit a checkpoint every this many frames (about a second of a 30
@@ -85,8 +87,11 @@ impl StoreArgs {
         let identity = store::identity(&config, source()?)
             .with_context(|| format!("--store {}", path.display()))?;
         if !self.resume {
-            run.store = Some(MapStore::create(path, &identity)?);
-            return Ok((Session::new(config)?, run, 0));
+            let store = MapStore::create(path, &identity)?;
+            let mut session = Session::new(config)?;
+            keep_freed_blocks(&mut session, &store)?;
+            run.store = Some(store);
+            return Ok((session, run, 0));
         }
         let (opened, saved) = MapStore::open(path)?;
         store::check_identity(path, &saved.identity, &identity)?;
@@ -98,11 +103,23 @@ impl StoreArgs {
             );
         }
         let position = saved.position;
-        let session = Session::resume(config, saved.session)?;
+        let mut session = Session::resume(config, saved.session)?;
+        keep_freed_blocks(&mut session, &opened)?;
         run.store = Some(opened);
         run.resumed_at = Some(position);
         Ok((session, run, position))
     }
+}
+
+/// With bounded memory (`--active-radius`), the blocks the camera leaves
+/// go to the store and come back from it when the camera returns.
+fn keep_freed_blocks(session: &mut Session, store: &MapStore) -> Result<()> {
+    if let Some(t) = session.backend_mut().tsdf_mut() {
+        if t.active_radius().is_some() {
+            t.set_archive(Box::new(store.archive()))?;
+        }
+    }
+    Ok(())
 }
 
 impl StoreRun {

@@ -6,12 +6,13 @@
 mod common;
 
 use common::{assert_fails_with, depthmesh, ok, scratch, simulated_frames_folder};
-use std::path::Path;
+use std::path::{Path, PathBuf};
 use std::process::{Command, Stdio};
 use std::time::{Duration, Instant};
 
 const FRAMES: u32 = 60;
 const TABLE: &str = concat!(env!("CARGO_MANIFEST_DIR"), "/../../scenes/table.toml");
+const CORRIDOR: &str = concat!(env!("CARGO_MANIFEST_DIR"), "/../../scenes/corridor.toml");
 
 fn reconstruct(frames: &Path, out: &Path, extra: &[&str], track: bool) -> Command {
     let mut c = Command::new(env!("CARGO_BIN_EXE_depthmesh"));
@@ -96,36 +97,9 @@ fn killed_and_resumed(
     track: bool,
 ) {
     let reference = dir.join("reference");
+    let start = Instant::now();
     assert!(make(&reference, &[]).status().unwrap().success());
-    let store = dir.join("map.store");
-    let run = dir.join("run");
-    // A small linear congruential generator: the same kill points every
-    // time, spread over the run.
-    let mut seed = 12_345u64;
-    let mut kills = 0;
-    let deadline = Instant::now() + Duration::from_secs(120);
-    while kills < 4 && Instant::now() < deadline {
-        let mut child = make(&run, &store_args(&store)).spawn().unwrap();
-        seed = seed.wrapping_mul(6_364_136_223_846_793_005).wrapping_add(1);
-        // Within the first 180 ms: a whole run takes about 200 ms here.
-        std::thread::sleep(Duration::from_millis(20 + (seed >> 33) % 160));
-        match child.try_wait().unwrap() {
-            Some(status) => {
-                // Finished before the kill: nothing more to interrupt.
-                let mut err = String::new();
-                std::io::Read::read_to_string(&mut child.stderr.take().unwrap(), &mut err).unwrap();
-                assert!(status.success(), "{err}");
-                break;
-            }
-            None => {
-                child.kill().unwrap();
-                child.wait().unwrap();
-                kills += 1;
-            }
-        }
-    }
-    assert!(kills > 0, "the run always finished before it was killed");
-    assert!(make(&run, &store_args(&store)).status().unwrap().success());
+    let (run, store, kills) = interrupted(dir, &make, start.elapsed());
     for file in ["mesh.ply", "trajectory.txt"] {
         assert!(
             std::fs::read(run.join(file)).unwrap() == std::fs::read(reference.join(file)).unwrap(),
@@ -163,6 +137,137 @@ fn killed_and_resumed(
     let from_store = exported(&store, "from-store.glb");
     assert!(from_store > 0);
     assert_eq!(from_store, exported(&run.join("mesh.ply"), "from-mesh.glb"));
+}
+
+/// Runs `make(DIR/run, store flags)` and kills it with SIGKILL at seeded
+/// points within `within` (about a whole run), at most four times, then
+/// resumes it to the end; returns the run's folder, its store and the kills.
+fn interrupted(
+    dir: &Path,
+    make: impl Fn(&Path, &[&str]) -> Command,
+    within: Duration,
+) -> (PathBuf, PathBuf, u32) {
+    let store = dir.join("map.store");
+    let run = dir.join("run");
+    // A small linear congruential generator: the same kill points every
+    // time, spread over the run.
+    let mut seed = 12_345u64;
+    let mut kills = 0;
+    let window = (within.as_millis() as u64 * 9 / 10).max(20);
+    let deadline = Instant::now() + Duration::from_secs(120);
+    while kills < 4 && Instant::now() < deadline {
+        let mut child = make(&run, &store_args(&store)).spawn().unwrap();
+        seed = seed.wrapping_mul(6_364_136_223_846_793_005).wrapping_add(1);
+        std::thread::sleep(Duration::from_millis(10 + (seed >> 33) % window));
+        match child.try_wait().unwrap() {
+            Some(status) => {
+                // Finished before the kill: nothing more to interrupt.
+                let mut err = String::new();
+                std::io::Read::read_to_string(&mut child.stderr.take().unwrap(), &mut err).unwrap();
+                assert!(status.success(), "{err}");
+                break;
+            }
+            None => {
+                child.kill().unwrap();
+                child.wait().unwrap();
+                kills += 1;
+            }
+        }
+    }
+    assert!(kills > 0, "the run always finished before it was killed");
+    let last = make(&run, &store_args(&store)).output().unwrap();
+    assert!(
+        last.status.success(),
+        "{}",
+        String::from_utf8_lossy(&last.stderr)
+    );
+    (run, store, kills)
+}
+
+/// A walk `out` m down `scenes/corridor.toml` looking ahead, turning round
+/// and coming back looking the other way, 0.25 m a frame: its TUM poses, in
+/// `dir`, and its frames.
+fn there_and_back(dir: &Path, out: f32) -> (PathBuf, u32) {
+    let half = (out / 0.25) as u32;
+    let mut poses = String::new();
+    for i in 0..2 * half {
+        let (x, ahead) = if i < half {
+            (0.5 + 0.25 * i as f32, 0.7)
+        } else {
+            (0.5 + 0.25 * (2 * half - 1 - i) as f32, -0.7)
+        };
+        let eye = glam::Vec3::new(x, 1.3, -0.5);
+        let pose =
+            depthmesh::Pose::look_at(eye, eye + glam::Vec3::new(ahead, -0.5, 1.0), glam::Vec3::Y);
+        let q = glam::Quat::from_mat3(&pose.rotation);
+        let t = pose.translation;
+        poses.push_str(&format!(
+            "{i} {} {} {} {} {} {} {}\n",
+            t.x, t.y, t.z, q.x, q.y, q.z, q.w
+        ));
+    }
+    let path = dir.join("walk.txt");
+    std::fs::write(&path, poses).unwrap();
+    (path, 2 * half)
+}
+
+#[test]
+fn a_bounded_walk_there_and_back_killed_and_resumed_equals_the_unbounded_map() {
+    let dir = scratch("store-bounded");
+    std::fs::create_dir_all(&dir).unwrap();
+    let (poses, frames) = there_and_back(&dir, 16.0);
+    let path = format!("tum:{}", poses.display());
+    let iterations = frames.to_string();
+    let make = |out: &Path, extra: &[&str]| {
+        let mut c = Command::new(env!("CARGO_BIN_EXE_depthmesh"));
+        c.args(["simulate", "--scene", CORRIDOR])
+            .args(["--map", "tsdf", "--voxel", "0.05", "--path", &path])
+            .args(["--iterations", &iterations, "--quiet"])
+            .args(["--out", out.to_str().unwrap()])
+            .args(extra)
+            .stdout(Stdio::null())
+            .stderr(Stdio::piped());
+        c
+    };
+    let unbounded = dir.join("unbounded");
+    let start = Instant::now();
+    assert!(make(&unbounded, &[]).status().unwrap().success());
+    // Beyond the simulated Kinect's reach (5.85 m at 5 cm voxels): every
+    // measurement is fused, so the bounded map can equal the unbounded one.
+    let bounded = |out: &Path, extra: &[&str]| {
+        let mut args = vec!["--active-radius", "6"];
+        args.extend(extra);
+        make(out, &args)
+    };
+    let (run, store, kills) = interrupted(&dir, bounded, start.elapsed());
+    let triangles = |path: &Path| {
+        let mut set = Vec::new();
+        depthmesh::mesh::io::read_mesh(path)
+            .unwrap()
+            .triangle_records(&mut set);
+        set.sort_unstable();
+        set
+    };
+    let whole = triangles(&unbounded.join("mesh.ply"));
+    assert!(whole.len() > 20_000, "{} triangles", whole.len());
+    assert!(
+        triangles(&run.join("mesh.ply")) == whole,
+        "the bounded map differs from the unbounded one after {kills} kills"
+    );
+    let summary = common::summary(&run);
+    assert!(summary["peak_blocks"].as_u64().unwrap() > 0, "{summary}");
+    assert!(summary["chunks"].as_u64().unwrap() > 0, "{summary}");
+    // The store holds the whole map, not only what was in memory.
+    let info = depthmesh(&["info", store.to_str().unwrap()]);
+    ok(&info);
+    let info: serde_json::Value = serde_json::from_slice(&info.stdout).unwrap();
+    let unbounded_blocks = common::summary(&unbounded)["map_bytes"].as_u64().unwrap() / (512 * 4);
+    assert_eq!(info["blocks"].as_u64().unwrap(), unbounded_blocks, "{info}");
+    assert!(
+        info["resident_blocks"].as_u64().unwrap() < unbounded_blocks,
+        "{info}"
+    );
+    std::fs::remove_dir_all(dir).unwrap();
 }
 
 #[test]

@@ -1,50 +1,30 @@
 //! Bounded memory: a long walk down a simulated corridor with a small active
 //! radius writes out chunks whose union is the unbounded map's mesh, while
-//! the blocks held in memory stay level.
+//! the blocks held in memory stay level; a walk that comes back continues
+//! the blocks it left in an archive, and its map equals the unbounded one.
 
+use depthmesh::error::Result;
 use depthmesh::map::Mapper;
 use depthmesh::sim::{NoiseModel, Scene, SceneOptions, SimulatedSensor};
+use depthmesh::tsdf::archive::BlockArchive;
 use depthmesh::tsdf::mapper::TsdfMapper;
 use depthmesh::tsdf::TsdfConfig;
+use depthmesh::tsdf::{Block, KeyMap};
 use depthmesh::{Intrinsics, Mesh, Pose};
-use glam::Vec3;
+use glam::{IVec3, Vec3};
 
-/// A floor, a wall on the +z side and boxes and posts along it, `length` m long.
-fn corridor(length: f32) -> Scene {
-    let mut text = format!(
-        "[[object]]\nshape = \"plane\"\nsize = [{l}, 6.0]\ntranslation = [{h}, 0.0, 0.0]\nfloor = true\n\
-         [[object]]\nshape = \"box\"\nsize = [{l}, 3.0, 0.1]\ntranslation = [{h}, 1.5, 2.0]\n",
-        l = length,
-        h = 0.5 * length
-    );
-    for i in 0..(length / 3.0) as usize {
-        let x = 1.5 + 3.0 * i as f32;
-        text.push_str(&format!(
-            "[[object]]\nshape = \"box\"\nsize = [0.6, 0.5, 0.4]\ntranslation = [{x}, 0.25, 1.5]\nrotation = [0.0, {a}, 0.0]\n\
-             [[object]]\nshape = \"cylinder\"\nradius = 0.1\nheight = 1.2\ntranslation = [{p}, 0.6, 1.2]\n",
-            a = 17.0 * i as f32,
-            p = x + 1.2
-        ));
-    }
-    Scene::parse(&text, "corridor.toml".as_ref(), &SceneOptions::default()).unwrap()
+/// `scenes/corridor.toml`: a floor, a wall on the +z side and boxes and
+/// posts along it, 40 m long.
+fn corridor() -> Scene {
+    let path = concat!(env!("CARGO_MANIFEST_DIR"), "/../../scenes/corridor.toml");
+    Scene::load(path.as_ref(), &SceneOptions::default()).unwrap()
 }
 
-/// Each triangle as its corners' (position, normal) bits, starting at the
-/// smallest corner (winding kept), sorted: the mesh up to vertex and
-/// triangle order.
+/// The triangles of `meshes`, sorted (see [`Mesh::triangle_records`]).
 fn triangle_set(meshes: &[Mesh]) -> Vec<[[u32; 6]; 3]> {
     let mut set = Vec::new();
     for m in meshes {
-        for t in &m.triangles {
-            let corner = |i: u32| {
-                let (p, n) = (m.positions[i as usize], m.normals[i as usize]);
-                [p.x, p.y, p.z, n.x, n.y, n.z].map(f32::to_bits)
-            };
-            let mut c = t.map(corner);
-            let first = (0..3).min_by_key(|&i| c[i]).unwrap();
-            c.rotate_left(first);
-            set.push(c);
-        }
+        m.triangle_records(&mut set);
     }
     set.sort_unstable();
     set
@@ -52,8 +32,7 @@ fn triangle_set(meshes: &[Mesh]) -> Vec<[[u32; 6]; 3]> {
 
 #[test]
 fn chunks_of_a_long_walk_equal_the_unbounded_map_in_bounded_memory() {
-    let length = 36.0;
-    let scene = corridor(length);
+    let scene = corridor();
     let k = Intrinsics::from_vertical_fov(160, 120, 60.0);
     let mut sensor = SimulatedSensor::new(k, 0.8, 4.0, NoiseModel::None, 0).unwrap();
     // Walking along +x, looking ahead to the wall and the floor.
@@ -115,4 +94,87 @@ fn chunks_of_a_long_walk_equal_the_unbounded_map_in_bounded_memory() {
         last * 10 <= middle * 12,
         "resident blocks grow: {middle} in the middle third, {last} in the last"
     );
+}
+
+/// An archive in memory: what a map store keeps, without the file.
+#[derive(Debug, Default)]
+struct Shelf(KeyMap<Block>);
+
+impl BlockArchive for Shelf {
+    fn keys(&self) -> Result<Vec<IVec3>> {
+        Ok(self.0.keys().copied().collect())
+    }
+
+    fn put(&mut self, blocks: Vec<(Block, u32)>) -> Result<()> {
+        self.0.extend(blocks.into_iter().map(|(b, _)| (b.key, b)));
+        Ok(())
+    }
+
+    fn get(&self, keys: &[IVec3]) -> Result<Vec<Block>> {
+        Ok(keys.iter().map(|k| self.0[k].clone()).collect())
+    }
+}
+
+#[test]
+fn a_walk_that_comes_back_continues_the_blocks_it_left_in_the_archive() {
+    let scene = corridor();
+    let k = Intrinsics::from_vertical_fov(160, 120, 60.0);
+    let mut sensor = SimulatedSensor::new(k, 0.8, 4.0, NoiseModel::None, 0).unwrap();
+    // 20 m along +x looking ahead, then back along −x looking the other way.
+    let poses: Vec<Pose> = (0..160)
+        .map(|i| {
+            let (x, ahead) = if i < 80 {
+                (0.5 + 0.25 * i as f32, 0.7)
+            } else {
+                (0.5 + 0.25 * (159 - i) as f32, -0.7)
+            };
+            let eye = Vec3::new(x, 1.3, -0.5);
+            Pose::look_at(eye, eye + Vec3::new(ahead, -0.5, 1.0), Vec3::Y)
+        })
+        .collect();
+    let config = TsdfConfig::new(0.05);
+    let mut unbounded = TsdfMapper::new(config, k, 0.8, 4.0).unwrap();
+    let mut archived = TsdfMapper::new(config, k, 0.8, 4.0).unwrap();
+    let mut chunked = TsdfMapper::new(config, k, 0.8, 4.0).unwrap();
+    let radius = archived.reach() + 0.05;
+    archived.set_active_radius(radius).unwrap();
+    archived.set_archive(Box::new(Shelf::default())).unwrap();
+    chunked.set_active_radius(radius).unwrap();
+    let mut chunks = Vec::new();
+    for (i, pose) in poses.iter().enumerate() {
+        let frame = sensor.capture(&scene, i as u32 + 1, pose);
+        unbounded.integrate(&frame, pose).unwrap();
+        archived.integrate(&frame, pose).unwrap();
+        chunked.integrate(&frame, pose).unwrap();
+        chunks.push(chunked.take_evicted());
+    }
+    let whole = triangle_set(&[unbounded.mesh().clone()]);
+    let mut pieces = Vec::new();
+    archived
+        .mesh_all(|m| {
+            pieces.push(m);
+            Ok(())
+        })
+        .unwrap();
+    assert!(pieces.len() > 1, "meshed in one piece");
+    assert!(whole.len() > 20_000, "{} triangles", whole.len());
+    assert!(
+        archived.loaded_blocks().unwrap() > 100,
+        "{:?} blocks brought back",
+        archived.loaded_blocks()
+    );
+    assert!(
+        archived.peak_blocks() * 3 < unbounded.volume().blocks().len() * 2,
+        "peak {} of {} blocks",
+        archived.peak_blocks(),
+        unbounded.volume().blocks().len()
+    );
+    assert!(
+        triangle_set(&pieces) == whole,
+        "the archived map differs from the unbounded one"
+    );
+    // Without the archive the region walked back through starts empty:
+    // its chunks hold other triangles.
+    chunks.push(chunked.mesh().clone());
+    assert!(triangle_set(&chunks) != whole);
 }

@@ -122,6 +122,24 @@ impl Mesh {
             .sum()
     }
 
+    /// Each triangle as its corners' exact (position, normal) bits, starting
+    /// at the smallest corner (winding kept), appended to `set`: sorted, the
+    /// triangles of one or more meshes up to vertex and triangle order, to
+    /// compare maps made in pieces with maps made whole.
+    pub fn triangle_records(&self, set: &mut Vec<[[u32; 6]; 3]>) {
+        let normal = |i: usize| self.normals.get(i).copied().unwrap_or(Vec3::ZERO);
+        for t in &self.triangles {
+            let corner = |i: u32| {
+                let (p, n) = (self.positions[i as usize], normal(i as usize));
+                [p.x, p.y, p.z, n.x, n.y, n.z].map(f32::to_bits)
+            };
+            let mut c = t.map(corner);
+            let first = (0..3).min_by_key(|&i| c[i]).expect("three corners");
+            c.rotate_left(first);
+            set.push(c);
+        }
+    }
+
     /// Appends `other`, re-indexing its triangles. Attributes present on only
     /// one side are dropped, since they would not cover every vertex.
     pub fn append(&mut self, other: &Mesh) {

@@ -140,6 +140,14 @@ impl Backend {
         }
     }
 
+    /// The TSDF mapper, if this is one, to change.
+    pub fn tsdf_mut(&mut self) -> Option<&mut TsdfMapper> {
+        match self {
+            Backend::Tsdf(t) => Some(t),
+            _ => None,
+        }
+    }
+
     /// What the last fused frame, which reported `report`, changed.
     pub fn changed(&self, report: &IntegrateReport) -> Changed {
         match self {
@@ -188,6 +196,9 @@ impl Backend {
                     summary.insert("sensor_reach".into(), json!(t.reach()));
                     summary.insert("evicted_blocks".into(), json!(t.evicted_blocks()));
                     summary.insert("peak_blocks".into(), json!(t.peak_blocks()));
+                    if let Some(loaded) = t.loaded_blocks() {
+                        summary.insert("loaded_blocks".into(), json!(loaded));
+                    }
                 }
             }
             Backend::Planes(p) => {

@@ -1,7 +1,8 @@
 //! The output contract of a mapping run (DESIGN.md): `mesh.ply`,
 //! `trajectory.txt`, `stats.csv` and `summary.json` in one folder, each
 //! written whole or not at all; with bounded memory also the chunk files of
-//! the blocks the camera left behind, written as they are evicted.
+//! the blocks the camera left behind, written as they are evicted (or, when
+//! they go to a map store, from the store and memory at the end).
 
 use super::{Backend, Session};
 use crate::atomic::write_atomic;
@@ -23,6 +24,9 @@ pub struct RunFiles {
     dir: PathBuf,
     /// `chunks/chunk-NNNNNN.ply`, for a session with bounded memory.
     chunks: Option<ChunkFiles>,
+    /// Whether the chunks hold the whole map (an archived bounded map, once
+    /// meshed at the end; see [`RunFiles::settle`]).
+    settled: bool,
 }
 
 impl RunFiles {
@@ -41,6 +45,7 @@ impl RunFiles {
         Ok(RunFiles {
             dir: dir.to_path_buf(),
             chunks,
+            settled: false,
         })
     }
 
@@ -58,12 +63,32 @@ impl RunFiles {
         Ok(())
     }
 
+    /// A bounded map whose blocks went to an archive is meshed into the
+    /// chunk files once, from the archive and memory, a slab at a time; the
+    /// mesh still held is then already in the chunks. Returns that mesh:
+    /// the session's, or an empty one after settling.
+    fn settle<'a>(&mut self, session: &'a mut Session, empty: &'a Mesh) -> Result<&'a Mesh> {
+        let archived = session.backend().tsdf().is_some_and(|t| t.archived());
+        if !archived {
+            return Ok(session.mesh());
+        }
+        if let (Some(files), Some(t), false) = (
+            &mut self.chunks,
+            session.backend_mut().tsdf_mut(),
+            self.settled,
+        ) {
+            t.mesh_all(|m| files.push(&m))?;
+            self.settled = true;
+        }
+        Ok(empty)
+    }
+
     /// Fraction of the whole map's surface — chunks written and the mesh
     /// still held — within `tolerance` of `truth`, weighted by area
     /// (`None` for an empty map). About a million samples per part keeps it
     /// to about a second a part.
     pub fn fraction_within(
-        &self,
+        &mut self,
         session: &mut Session,
         truth: &Mesh,
         tolerance: f32,
@@ -78,7 +103,8 @@ impl RunFiles {
             }
             Ok(())
         };
-        let rest = session.mesh();
+        let empty = Mesh::default();
+        let rest = self.settle(session, &empty)?;
         match &self.chunks {
             Some(files) => files.for_each(rest, judge)?,
             None => judge(rest)?,
@@ -106,11 +132,12 @@ impl RunFiles {
         let map_bytes = session.backend().mapper().stats().bytes;
         let name = session.backend().mapper().name();
         let mesh_path = self.path("mesh.ply");
+        let empty = Mesh::default();
+        let rest = self.settle(session, &empty)?;
         let layout = match &mut self.chunks {
             Some(files) => {
                 files.flush()?;
                 summary.insert("chunks".into(), json!(files.files().len()));
-                let rest = session.mesh();
                 files.write_joined(&mesh_path, rest)?;
                 let mut layout = files.written();
                 layout.vertices += rest.vertex_count();
@@ -118,9 +145,8 @@ impl RunFiles {
                 layout
             }
             None => {
-                let mesh = session.mesh();
-                write_ply(&mesh_path, mesh, PlyFormat::BinaryLittleEndian)?;
-                PlyLayout::of(mesh)
+                write_ply(&mesh_path, rest, PlyFormat::BinaryLittleEndian)?;
+                PlyLayout::of(rest)
             }
         };
         let tum = format_tum(&session.trajectory());

@@ -8,29 +8,37 @@
 //!
 //! | table | key | value |
 //! |---|---|---|
-//! | `meta` | name | `format` (u64), `identity` (JSON: settings, camera, dataset), `checkpoint` (JSON: frames fused, dataset position, time), `tracking` (JSON: the tracker's state), `last_view` (the last fused frame's pose and depth, from which ray casting for tracking starts) |
+//! | `meta` | name | `format` (u64), `identity` (JSON: settings, camera, dataset), `checkpoint` (JSON: frames fused, dataset position, time), `tracking` (JSON: the tracker's state), `last_view` (the last fused frame's pose and depth, from which ray casting for tracking starts), `resident` (bounded memory: the keys of the blocks in memory, LZ4-compressed `i32` triples) |
 //! | `blocks` | TSDF block coordinates | the block's distances, weights (and colours), LZ4-compressed ([`block_codec`]) |
 //! | `records` | frame order | the frame's record (pose, timings, map size) as JSON ([`records`]) |
 //!
 //! A checkpoint writes, in one transaction, the blocks changed or allocated
 //! since the previous checkpoint and the records since it, so its cost
-//! follows what the frames changed, not the map's size. For now the store
-//! holds TSDF sessions (given or tracked poses; the other back-ends' maps
-//! and bounded memory's evicted blocks are not saved yet).
+//! follows what the frames changed, not the map's size. With bounded
+//! memory the store is also where freed blocks go and come back from
+//! ([`archive`]); it then holds the whole map, and a continued session
+//! loads only the blocks that were in memory. For now the store holds TSDF
+//! sessions (given or tracked poses; the other back-ends' maps are not
+//! saved yet).
 
+pub mod archive;
 pub mod block_codec;
 pub mod records;
+
+use archive::{Encoded, Shelf, StoreArchive};
 
 use crate::camera::Pose;
 use crate::error::{Error, Result};
 use crate::image::DepthImage;
 use crate::session::{Backend, MapConfig, PoseState, Resumed, Session, SessionConfig};
 use crate::track::TrackerState;
+use crate::tsdf::archive::BlockArchive;
+use crate::tsdf::KeyMap;
 use rayon::prelude::*;
 use redb::{Database, ReadableDatabase, ReadableTable, TableDefinition};
 use serde_json::{json, Value};
 use std::path::{Path, PathBuf};
-use std::sync::Arc;
+use std::sync::{Arc, Mutex};
 use std::time::Instant;
 
 /// The store's format; a store of another format is refused.
@@ -46,11 +54,10 @@ pub struct MapStore {
     /// The commit of the last checkpoint, running beside the frame loop.
     writing: Option<std::thread::JoinHandle<Result<()>>>,
     path: PathBuf,
-    /// Frames the volume had fused at the last checkpoint.
-    saved_frames: u32,
-    /// Blocks the volume held then (blocks are only ever appended while
-    /// a store is kept, so the ones after these are new).
-    saved_blocks: usize,
+    /// Frames fused at the last checkpoint, and freed blocks not committed yet.
+    shelf: Arc<Mutex<Shelf>>,
+    /// Whether the blocks hold colours.
+    color: bool,
     /// Records written so far.
     saved_records: usize,
 }
@@ -61,8 +68,11 @@ pub struct Saved {
     pub identity: Value,
     /// How many of the dataset's selected frames were read by then.
     pub position: usize,
-    /// The session's state at the last checkpoint.
+    /// The session's state at the last checkpoint (with bounded memory,
+    /// only the blocks that were in memory).
     pub session: Resumed,
+    /// Blocks in the store.
+    pub stored_blocks: usize,
 }
 
 /// What a checkpoint wrote.
@@ -87,12 +97,6 @@ pub fn identity(config: &SessionConfig, dataset: Value) -> Result<Value> {
             "the map store holds TSDF maps for now",
         ));
     };
-    if t.active_radius.is_some() {
-        return Err(Error::parameter(
-            "active_radius",
-            "the map store does not keep evicted blocks yet",
-        ));
-    }
     let k = &config.intrinsics;
     let c = &t.config;
     Ok(json!({
@@ -104,6 +108,7 @@ pub fn identity(config: &SessionConfig, dataset: Value) -> Result<Value> {
         "min_weight": c.min_weight,
         "color": c.color,
         "range": [t.range.0, t.range.1],
+        "active_radius": t.active_radius,
         "camera": [k.width, k.height, k.fx, k.fy, k.cx, k.cy],
         // The tracker's settings as a whole: any change is refused.
         "tracking": config.tracking.as_ref().map(|t| format!("{t:?}")),
@@ -164,11 +169,26 @@ impl MapStore {
             db: Arc::new(db),
             writing: None,
             path: path.to_path_buf(),
-            saved_frames: saved.session.frames,
-            saved_blocks: saved.session.blocks.len(),
+            shelf: Arc::new(Mutex::new(Shelf {
+                saved_frames: saved.session.frames,
+                ..Shelf::default()
+            })),
+            color: colour(&saved.identity),
             saved_records: saved.session.records.len(),
         };
         Ok((store, saved))
+    }
+
+    /// The store as the archive of a bounded map
+    /// ([`crate::tsdf::mapper::TsdfMapper::set_archive`]): the blocks it
+    /// frees are committed with the checkpoints.
+    pub fn archive(&self) -> StoreArchive {
+        StoreArchive {
+            db: self.db.clone(),
+            path: self.path.clone(),
+            shelf: self.shelf.clone(),
+            color: self.color,
+        }
     }
 
     /// Commits what changed since the last checkpoint: the blocks fused
@@ -187,18 +207,12 @@ impl MapStore {
             ));
         };
         let volume = t.volume();
-        // Changed blocks, and new ones even if nothing was fused into them
-        // yet: ray casting treats a block that is there but empty otherwise
-        // than one that is not, so the continued map must hold the same.
-        let mut keys = volume.changed_after(self.saved_frames);
-        keys.extend(
-            volume.blocks()[self.saved_blocks.min(volume.blocks().len())..]
-                .iter()
-                .map(|b| b.key),
-        );
-        keys.sort_unstable_by_key(|k| (k.x, k.y, k.z));
-        keys.dedup();
-        let blocks: Vec<((i32, i32, i32), Vec<u8>)> = keys
+        let mut shelf = self.shelf.lock().unwrap_or_else(|e| e.into_inner());
+        // Changed blocks, new ones included even if nothing was fused into
+        // them yet: ray casting treats a block that is there but empty
+        // otherwise than one that is not, so the continued map must hold the same.
+        let keys = volume.changed_after(shelf.saved_frames);
+        let changed: Vec<(glam::IVec3, Vec<u8>)> = keys
             .par_iter()
             .map(|key| {
                 let mut bytes = Vec::new();
@@ -206,10 +220,25 @@ impl MapStore {
                     volume.block(*key).expect("changed blocks are held"),
                     &mut bytes,
                 );
-                ((key.x, key.y, key.z), bytes)
+                (*key, bytes)
             })
             .collect();
-        let bytes = blocks.iter().map(|(_, b)| b.len()).sum();
+        // Blocks freed since, then the resident ones (newer where both).
+        let mut blocks: Encoded = std::mem::take(&mut shelf.pending);
+        let freed = blocks.len();
+        blocks.extend(changed);
+        let blocks = Arc::new(blocks);
+        shelf.committing = blocks.clone();
+        let bytes = blocks.values().map(Vec::len).sum();
+        let resident = t.archived().then(|| {
+            let raw: Vec<u8> = volume
+                .blocks()
+                .iter()
+                .flat_map(|b| b.key.to_array())
+                .flat_map(i32::to_le_bytes)
+                .collect();
+            lz4_flex::compress_prepend_size(&raw)
+        });
         let first = self.saved_records;
         let rows: Vec<String> = session.records()[first..]
             .iter()
@@ -233,8 +262,8 @@ impl MapStore {
         self.writing = Some(std::thread::spawn(move || {
             write(&db, &path, |txn| {
                 let mut table = txn.open_table(BLOCKS)?;
-                for (key, b) in &blocks {
-                    table.insert(*key, b.as_slice())?;
+                for (key, b) in blocks.iter() {
+                    table.insert((key.x, key.y, key.z), b.as_slice())?;
                 }
                 let mut table = txn.open_table(RECORDS)?;
                 for (i, row) in rows.iter().enumerate() {
@@ -247,15 +276,17 @@ impl MapStore {
                 if let Some(view) = &last_view {
                     meta.insert("last_view", view.as_slice())?;
                 }
+                if let Some(resident) = &resident {
+                    meta.insert("resident", resident.as_slice())?;
+                }
                 meta.insert("checkpoint", checkpoint.as_bytes())?;
                 Ok(())
             })
         }));
-        self.saved_frames = frames;
-        self.saved_blocks = volume.blocks().len();
+        shelf.saved_frames = frames;
         self.saved_records = session.records().len();
         Ok(Checkpoint {
-            blocks: keys.len(),
+            blocks: keys.len() + freed,
             bytes,
             ms: start.elapsed().as_secs_f64() * 1e3,
         })
@@ -263,12 +294,18 @@ impl MapStore {
 
     /// Waits for the last checkpoint's commit; its error, if it failed.
     pub fn finish(&mut self) -> Result<()> {
-        match self.writing.take() {
-            Some(handle) => handle
-                .join()
-                .unwrap_or_else(|_| Err(Error::format(&self.path, "map store: the commit failed"))),
-            None => Ok(()),
-        }
+        let Some(handle) = self.writing.take() else {
+            return Ok(());
+        };
+        handle
+            .join()
+            .unwrap_or_else(|_| Err(Error::format(&self.path, "map store: the commit failed")))?;
+        // Committed: the store has those blocks now.
+        self.shelf
+            .lock()
+            .unwrap_or_else(|e| e.into_inner())
+            .committing = Arc::default();
+        Ok(())
     }
 }
 
@@ -334,9 +371,11 @@ pub fn is_store(path: &Path) -> bool {
 }
 
 /// The mesh of the map a store holds at its last checkpoint: what the run
-/// that wrote it would have written as `mesh.ply` had it ended there.
+/// that wrote it would have written as `mesh.ply` had it ended there. Meshed
+/// a slab at a time ([`crate::tsdf::archive::mesh_slabs`]), so only the
+/// mesh, not the map, must fit in memory.
 pub fn mesh(path: &Path) -> Result<crate::mesh::Mesh> {
-    let (_, saved) = MapStore::open(path)?;
+    let (store, saved) = MapStore::open(path)?;
     let id = &saved.identity;
     let bad = |k: &str| Error::format(path, format!("identity: no {k}"));
     let number = |k: &str| id[k].as_f64().ok_or_else(|| bad(k));
@@ -353,11 +392,19 @@ pub fn mesh(path: &Path) -> Result<crate::mesh::Mesh> {
         color: id["color"].as_bool().ok_or_else(|| bad("color"))?,
         min_weight: weight("min_weight")?,
     };
-    let mut volume = crate::tsdf::TsdfVolume::new(config)?;
-    volume.restore(saved.session.blocks, saved.session.frames)?;
-    let mut cache = crate::tsdf::mesh::MeshCache::new(config.min_weight);
-    cache.update(&volume);
-    Ok(cache.assemble())
+    drop(saved);
+    let archive = store.archive();
+    let mut mesh = crate::mesh::Mesh::default();
+    crate::tsdf::archive::mesh_slabs(
+        config,
+        archive.keys()?,
+        |keys| archive.get(keys),
+        |piece| {
+            mesh.append(&piece);
+            Ok(())
+        },
+    )?;
+    Ok(mesh)
 }
 
 /// What a store holds, for `depthmesh info`: its identity, last checkpoint,
@@ -367,14 +414,15 @@ pub fn info(path: &Path) -> Result<Value> {
     let size = std::fs::metadata(path)
         .map_err(|e| Error::io(path, e))?
         .len();
-    let voxels = saved.session.blocks.len() * crate::tsdf::BLOCK_VOXELS;
+    let voxels = saved.stored_blocks * crate::tsdf::BLOCK_VOXELS;
     Ok(json!({
         "store": path.display().to_string(),
         "format": FORMAT,
         "frames": saved.session.frames,
         "records": saved.session.records.len(),
         "dataset_position": saved.position,
-        "blocks": saved.session.blocks.len(),
+        "blocks": saved.stored_blocks,
+        "resident_blocks": saved.session.blocks.len(),
         "tracked": saved.session.poses.is_some(),
         "voxels": voxels,
         "file_bytes": size,
@@ -394,6 +442,7 @@ fn read_saved(db: &Database, path: &Path) -> Result<Saved> {
         let checkpoint = meta.get("checkpoint")?.map(|v| v.value().to_vec());
         let tracking = meta.get("tracking")?.map(|v| v.value().to_vec());
         let last_view = meta.get("last_view")?.map(|v| v.value().to_vec());
+        let resident = meta.get("resident")?.map(|v| v.value().to_vec());
         let mut blocks = Vec::new();
         for entry in txn.open_table(BLOCKS)?.iter()? {
             let (k, v) = entry?;
@@ -405,10 +454,10 @@ fn read_saved(db: &Database, path: &Path) -> Result<Saved> {
             records.push(v.value().to_vec());
         }
         Ok((
-            format, identity, checkpoint, tracking, last_view, blocks, records,
+            format, identity, checkpoint, tracking, last_view, resident, blocks, records,
         ))
     };
-    let (format, identity, checkpoint, tracking, last_view, blocks, records) =
+    let (format, identity, checkpoint, tracking, last_view, resident, blocks, records) =
         read().map_err(|e| store_error(path, e))?;
     let format = format
         .and_then(|f| <[u8; 8]>::try_from(f.as_slice()).ok())
@@ -438,9 +487,19 @@ fn read_saved(db: &Database, path: &Path) -> Result<Saved> {
     if number("records")? as usize != records.len() {
         return Err(bad("checkpoint and records disagree".into()));
     }
-    let color = identity["color"].as_bool().unwrap_or(false);
+    let color = colour(&identity);
+    let stored_blocks = blocks.len();
+    // With bounded memory, only the blocks that were in memory.
+    let resident: Option<KeyMap<()>> = resident
+        .map(|r| resident_keys(&r).map_err(|e| bad(format!("resident blocks: {e}"))))
+        .transpose()?;
     let blocks = blocks
         .into_iter()
+        .filter(|((x, y, z), _)| {
+            resident
+                .as_ref()
+                .is_none_or(|r| r.contains_key(&glam::IVec3::new(*x, *y, *z)))
+        })
         .map(|((x, y, z), bytes)| {
             block_codec::decode(glam::IVec3::new(x, y, z), &bytes, color)
                 .map_err(|e| bad(format!("block ({x}, {y}, {z}): {e}")))
@@ -468,7 +527,26 @@ fn read_saved(db: &Database, path: &Path) -> Result<Saved> {
             last_view,
             poses,
         },
+        stored_blocks,
     })
+}
+
+/// Whether a store's blocks hold colours, by its identity.
+fn colour(identity: &Value) -> bool {
+    identity["color"].as_bool().unwrap_or(false)
+}
+
+/// The keys of a checkpoint's `resident` entry.
+fn resident_keys(bytes: &[u8]) -> std::result::Result<KeyMap<()>, String> {
+    let raw = lz4_flex::decompress_size_prepended(bytes).map_err(|e| e.to_string())?;
+    if raw.len() % 12 != 0 {
+        return Err(format!("{} bytes, not whole keys", raw.len()));
+    }
+    let i = |b: &[u8]| i32::from_le_bytes([b[0], b[1], b[2], b[3]]);
+    Ok(raw
+        .chunks_exact(12)
+        .map(|k| (glam::IVec3::new(i(&k[..4]), i(&k[4..8]), i(&k[8..])), ()))
+        .collect())
 }
 
 /// The tracking state as JSON (poses as [`records::pose_array`]).

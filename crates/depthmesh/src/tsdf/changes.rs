@@ -21,6 +21,10 @@ pub struct Changes {
     pub values: [u32; 8],
     /// Any weight, including weights that only grew.
     pub weights: u32,
+    /// Fusion allocated the block or changed any voxel of it (0: not
+    /// since it was put back from elsewhere, a map store, which holds it
+    /// as it is): what a store must write again.
+    pub fused: u32,
 }
 
 impl Changes {
@@ -48,6 +52,9 @@ impl Changes {
         }
         if weights {
             self.weights = frame;
+        }
+        if weights || readers != 0 {
+            self.fused = frame;
         }
     }
 }

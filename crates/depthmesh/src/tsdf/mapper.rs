@@ -2,6 +2,7 @@
 //! mesh of changed blocks up to date, predict depth by ray casting, and with
 //! an active region hand out the mesh of blocks left behind.
 
+use super::archive::{BlockArchive, SwapRegion};
 use super::evict::ActiveRegion;
 use super::mesh::{changed_since, extract_sets, MeshCache};
 use super::raycast::RaycastImage;
@@ -13,6 +14,31 @@ use crate::map::{IntegrateReport, MapStats, Mapper};
 use crate::mesh::Mesh;
 use glam::IVec3;
 use std::time::Instant;
+
+/// How a bounded map frees the blocks the camera left.
+#[derive(Debug)]
+enum Bounded {
+    /// Meshed into [`TsdfMapper::take_evicted`], then forgotten.
+    Chunks(ActiveRegion),
+    /// Kept in an archive, brought back when the camera returns.
+    Archive(SwapRegion),
+}
+
+impl Bounded {
+    fn radius(&self) -> f32 {
+        match self {
+            Bounded::Chunks(a) => a.radius(),
+            Bounded::Archive(a) => a.radius(),
+        }
+    }
+
+    fn evicted_blocks(&self) -> usize {
+        match self {
+            Bounded::Chunks(a) => a.evicted_blocks(),
+            Bounded::Archive(a) => a.evicted_blocks(),
+        }
+    }
+}
 
 /// TSDF fusion with marching cubes; the blocks changed since the last
 /// re-mesh are re-meshed every `remesh_every` frames, or when the mesh is asked for.
@@ -30,8 +56,8 @@ pub struct TsdfMapper {
     range: (f32, f32),
     /// The pose and depth of the last fused frame.
     last_view: Option<(Pose, DepthImage)>,
-    /// When set, blocks out of range are written out and freed.
-    active: Option<ActiveRegion>,
+    /// When set, blocks out of range are written out (or archived) and freed.
+    active: Option<Bounded>,
     /// Triangles of blocks written out since the last [`TsdfMapper::take_evicted`].
     evicted_mesh: Mesh,
     /// Most blocks held at once.
@@ -65,9 +91,53 @@ impl TsdfMapper {
     /// from the camera are meshed into [`TsdfMapper::take_evicted`] and freed
     /// (see [`super::evict`]); [`Mapper::mesh`] then holds only the rest.
     pub fn set_active_radius(&mut self, radius: f32) -> Result<()> {
-        self.active = Some(ActiveRegion::new(radius)?);
+        self.active = Some(Bounded::Chunks(ActiveRegion::new(radius)?));
         self.volume.set_reach(radius);
         Ok(())
+    }
+
+    /// With an active radius, keeps the blocks the camera leaves in
+    /// `archive` instead of meshing them out, and brings them back when it
+    /// returns (see [`super::archive`]); the map is then the resident blocks
+    /// and the archived ones ([`TsdfMapper::mesh_all`]). Blocks `archive`
+    /// holds already (a continued map) count as the map's.
+    pub fn set_archive(&mut self, archive: Box<dyn BlockArchive>) -> Result<()> {
+        let radius = match &self.active {
+            Some(Bounded::Chunks(a)) if a.evicted_blocks() == 0 => a.radius(),
+            Some(_) => {
+                return Err(crate::error::Error::parameter(
+                    "archive",
+                    "set before any block is freed",
+                ))
+            }
+            None => {
+                return Err(crate::error::Error::parameter(
+                    "archive",
+                    "needs an active radius",
+                ))
+            }
+        };
+        self.active = Some(Bounded::Archive(SwapRegion::new(
+            radius,
+            archive,
+            &self.volume,
+        )?));
+        Ok(())
+    }
+
+    /// Whether freed blocks go to an archive ([`TsdfMapper::set_archive`]).
+    pub fn archived(&self) -> bool {
+        matches!(self.active, Some(Bounded::Archive(_)))
+    }
+
+    /// The whole map's triangles, a slab at a time (see
+    /// [`super::archive::mesh_slabs`]): with an archive, of the resident and
+    /// the archived blocks; otherwise [`Mapper::mesh`] in one piece.
+    pub fn mesh_all(&mut self, mut f: impl FnMut(Mesh) -> Result<()>) -> Result<()> {
+        match &self.active {
+            Some(Bounded::Archive(a)) => a.mesh_all(&self.volume, f),
+            _ => f(self.mesh().clone()),
+        }
     }
 
     /// The farthest a fused voxel can be from the camera: the far depth along
@@ -91,12 +161,20 @@ impl TsdfMapper {
 
     /// Blocks freed so far by the active region.
     pub fn evicted_blocks(&self) -> usize {
-        self.active.as_ref().map_or(0, ActiveRegion::evicted_blocks)
+        self.active.as_ref().map_or(0, Bounded::evicted_blocks)
+    }
+
+    /// Blocks brought back from the archive so far (`None` without one).
+    pub fn loaded_blocks(&self) -> Option<usize> {
+        match &self.active {
+            Some(Bounded::Archive(a)) => Some(a.loaded_blocks()),
+            _ => None,
+        }
     }
 
     /// The active radius, when memory is bounded.
     pub fn active_radius(&self) -> Option<f32> {
-        self.active.as_ref().map(ActiveRegion::radius)
+        self.active.as_ref().map(Bounded::radius)
     }
 
     /// Most blocks held in memory at once (after a frame's integration).
@@ -140,8 +218,8 @@ impl TsdfMapper {
 
     fn assemble(&self, cache: &MeshCache) -> Mesh {
         match &self.active {
-            Some(active) => active.remainder(&self.volume, cache),
-            None => cache.assemble(),
+            Some(Bounded::Chunks(active)) => active.remainder(&self.volume, cache),
+            _ => cache.assemble(),
         }
     }
 
@@ -230,6 +308,10 @@ impl Mapper for TsdfMapper {
         let start = Instant::now();
         let blocks_before = self.volume.blocks().len();
         let evicted_before = self.evicted_blocks();
+        let loaded = match &mut self.active {
+            Some(Bounded::Archive(a)) => a.bring_back(&mut self.volume, pose.translation)?,
+            _ => 0,
+        };
         self.volume
             .integrate(&frame.depth, frame.color.as_ref(), &self.intrinsics, pose)?;
         let integrated = start.elapsed();
@@ -238,9 +320,15 @@ impl Mapper for TsdfMapper {
         depth.reset(frame.depth.width, frame.depth.height);
         depth.data.copy_from_slice(&frame.depth.data);
         self.peak_blocks = self.peak_blocks.max(self.volume.blocks().len());
-        if let Some(active) = &mut self.active {
-            let mesh = active.update(&mut self.volume, &mut self.cache, pose.translation);
-            self.evicted_mesh.append(&mesh);
+        match &mut self.active {
+            Some(Bounded::Chunks(active)) => {
+                let mesh = active.update(&mut self.volume, &mut self.cache, pose.translation);
+                self.evicted_mesh.append(&mesh);
+            }
+            Some(Bounded::Archive(active)) => {
+                active.evict(&mut self.volume, &mut self.cache, pose.translation)?;
+            }
+            None => {}
         }
         let evicted = start.elapsed() - integrated;
         let evicted_now = self.evicted_blocks() - evicted_before;
@@ -262,10 +350,14 @@ impl Mapper for TsdfMapper {
             extra.push(("evicted_blocks", self.evicted_blocks() as f64));
             extra.push(("evict_ms", evicted.as_secs_f64() * 1e3));
         }
+        if self.archived() {
+            extra.push(("loaded_blocks", loaded as f64));
+        }
         let blocks = self.volume.blocks().len();
         Ok(IntegrateReport {
             // The map's elements are voxels, allocated a block at a time.
-            new_elements: (blocks + evicted_now).saturating_sub(blocks_before)
+            // (Blocks brought back from an archive are not new.)
+            new_elements: (blocks + evicted_now).saturating_sub(blocks_before + loaded)
                 * super::BLOCK_VOXELS,
             // Evicted blocks leave memory, not the map: they are written out.
             removed_elements: 0,

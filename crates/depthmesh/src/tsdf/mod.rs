@@ -7,6 +7,7 @@
 //! mesh is rebuilt only when what it is meshed from changed (see [`changes`]
 //! and [`mesh`]).
 
+pub mod archive;
 pub mod cases;
 pub mod changes;
 pub mod evict;
@@ -415,7 +416,10 @@ impl TsdfVolume {
                     weight: Box::new([0; BLOCK_VOXELS]),
                     color: c.color.then(|| Box::new([[0; 3]; BLOCK_VOXELS])),
                 });
-                self.changes.push(Changes::default());
+                self.changes.push(Changes {
+                    fused: self.frames,
+                    ..Changes::default()
+                });
             }
         }
     }
@@ -425,6 +429,19 @@ impl TsdfVolume {
     /// block counts as changed at `frames`, so the first mesh made from it
     /// meshes them all. A block whose key is already held replaces it.
     pub fn restore(&mut self, blocks: Vec<Block>, frames: u32) -> Result<()> {
+        self.frames = self.frames.max(frames);
+        self.put_back(blocks, frames)
+    }
+
+    /// Puts back blocks kept elsewhere while the volume went on (bounded
+    /// memory with a map store): they count as changed by the next frame, so
+    /// the mesh made after it includes them and the blocks below them, but
+    /// not as fused (where they came from holds them as they are).
+    pub fn load(&mut self, blocks: Vec<Block>) -> Result<()> {
+        self.put_back(blocks, self.frames + 1)
+    }
+
+    fn put_back(&mut self, blocks: Vec<Block>, changed_at: u32) -> Result<()> {
         let colour = self.config.color;
         for block in blocks {
             if block.color.is_some() != colour {
@@ -434,8 +451,9 @@ impl TsdfVolume {
                 ));
             }
             let changed = Changes {
-                values: [frames; 8],
-                weights: frames,
+                values: [changed_at; 8],
+                weights: changed_at,
+                fused: 0,
             };
             match self.index.get(&block.key) {
                 Some(&i) => {
@@ -449,17 +467,17 @@ impl TsdfVolume {
                 }
             }
         }
-        self.frames = self.frames.max(frames);
         Ok(())
     }
 
-    /// The keys of blocks changed (any voxel, weights included) after frame
-    /// `since`.
+    /// The keys of blocks fusion allocated or changed (any voxel, weights
+    /// included) after frame `since`; blocks put back by [`TsdfVolume::restore`]
+    /// or [`TsdfVolume::load`] count only once fused again.
     pub fn changed_after(&self, since: u32) -> Vec<IVec3> {
         self.blocks
             .iter()
             .zip(&self.changes)
-            .filter(|(_, c)| c.weights.max(c.values.into_iter().max().unwrap_or(0)) > since)
+            .filter(|(_, c)| c.fused > since)
             .map(|(b, _)| b.key)
             .collect()
     }
@@ -472,17 +490,26 @@ impl TsdfVolume {
     /// Frees the blocks with the given keys (keys not in the map are ignored).
     /// Block indices change: the last block moves into each freed slot.
     pub fn remove_blocks(&mut self, keys: &[IVec3]) {
+        self.take_blocks(keys);
+    }
+
+    /// Takes the blocks with the given keys out of the volume, each with the
+    /// frame fusion last changed it ([`Changes::fused`]); as
+    /// [`TsdfVolume::remove_blocks`].
+    pub fn take_blocks(&mut self, keys: &[IVec3]) -> Vec<(Block, u32)> {
+        let mut taken = Vec::with_capacity(keys.len());
         for key in keys {
             let Some(i) = self.index.remove(key) else {
                 continue;
             };
             let i = i as usize;
-            self.blocks.swap_remove(i);
-            self.changes.swap_remove(i);
+            let block = self.blocks.swap_remove(i);
+            taken.push((block, self.changes.swap_remove(i).fused));
             if let Some(moved) = self.blocks.get(i) {
                 self.index.insert(moved.key, i as u32);
             }
         }
+        taken
     }
 
     /// The truncated distance (in units of the truncation, −1..1) and weight
