@@ -137,7 +137,7 @@ pub fn run(args: &ReconstructArgs, quiet: bool) -> Result<()> {
         "integrate_fps".into(),
         json!(session.records().len() as f64 / session.seconds()),
     );
-    store.summarise(&mut summary)?;
+    store.summarise(&session, &mut summary)?;
     let summary = files.finish(&mut session, summary)?;
     args.export.write(session.mesh(), &args.out)?;
     // A run that lost tracking keeps its files: they show what happened.

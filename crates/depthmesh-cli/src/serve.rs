@@ -45,6 +45,14 @@ pub struct ServeArgs {
     /// Frames a client may have in flight.
     #[arg(long, default_value_t = Limits::default().window)]
     pub window: u32,
+    /// Each session keeps its map in OUT/<session>/map.store, checkpointed
+    /// as it goes; after a crash, `stream --session NAME --resume` continues
+    /// it (TSDF maps).
+    #[arg(long)]
+    pub store: bool,
+    /// With --store: commit a checkpoint every this many frames.
+    #[arg(long, default_value_t = 30)]
+    pub checkpoint_every: u32,
 }
 
 /// Runs `serve` until interrupted (Ctrl-C or SIGTERM): live sessions then
@@ -64,6 +72,7 @@ pub fn run(args: &ServeArgs) -> Result<()> {
         ("--max-sessions", args.max_sessions as u64),
         ("--idle-timeout", args.idle_timeout),
         ("--window", u64::from(args.window)),
+        ("--checkpoint-every", u64::from(args.checkpoint_every)),
     ] {
         if value == 0 {
             bail!("{flag} must be at least 1");
@@ -87,6 +96,7 @@ pub fn run(args: &ServeArgs) -> Result<()> {
         depth_range: (args.map.depth_min, args.map.depth_max),
         tracker: TrackerConfig::default(),
         map: Box::new(move |k| map.config(k)),
+        checkpoint_every: args.store.then_some(args.checkpoint_every),
     };
     let runtime = tokio::runtime::Runtime::new().context("cannot start the server's runtime")?;
     runtime.block_on(async {

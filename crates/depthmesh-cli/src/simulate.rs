@@ -278,7 +278,7 @@ pub fn run_scene(args: &SimulateArgs, scene: &Scene, quiet: bool) -> Result<RunS
         );
     }
     summary.insert("sensor_seconds".into(), json!(sensor_seconds));
-    store.summarise(&mut summary)?;
+    store.summarise(&session, &mut summary)?;
     // null for an empty map: there is no surface to judge.
     for (key, tolerance) in [
         ("surface_within_5mm", 0.005),

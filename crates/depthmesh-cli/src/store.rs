@@ -6,7 +6,7 @@ use anyhow::{bail, Context, Result};
 use clap::Args;
 use depthmesh::dataset::Dataset;
 use depthmesh::session::{Session, SessionConfig};
-use depthmesh::store::{self, MapStore};
+use depthmesh::store::checkpoints::{self, Checkpoints};
 use serde_json::{json, Map, Value};
 use std::path::{Path, PathBuf};
 
@@ -43,17 +43,12 @@ impl Default for StoreArgs {
 /// Frames between checkpoints unless told: about a second of a sensor.
 const DEFAULT_CHECKPOINT_EVERY: u32 = 30;
 
-/// The store of a run, if it has one, and what its checkpoints cost.
+/// The store of a run, if it has one (see [`depthmesh::store::checkpoints`]).
 pub struct StoreRun {
-    store: Option<MapStore>,
-    every: u32,
+    checkpoints: Option<Checkpoints>,
     total: usize,
-    since: u32,
-    checkpoints: usize,
-    blocks: usize,
-    bytes: usize,
-    ms: f64,
-    resumed_at: Option<usize>,
+    /// Dataset frames read so far.
+    position: usize,
 }
 
 impl StoreArgs {
@@ -67,99 +62,52 @@ impl StoreArgs {
         source: impl FnOnce() -> Result<Value>,
         total: usize,
     ) -> Result<(Session, StoreRun, usize)> {
-        let mut run = StoreRun {
-            store: None,
-            every: self.checkpoint_every,
-            total,
-            since: 0,
-            checkpoints: 0,
-            blocks: 0,
-            bytes: 0,
-            ms: 0.0,
-            resumed_at: None,
-        };
         let Some(path) = &self.store else {
+            let run = StoreRun {
+                checkpoints: None,
+                total,
+                position: 0,
+            };
             return Ok((Session::new(config)?, run, 0));
         };
         if self.checkpoint_every == 0 {
             bail!("--checkpoint-every must be at least 1");
         }
-        let identity = store::identity(&config, source()?)
-            .with_context(|| format!("--store {}", path.display()))?;
-        if !self.resume {
-            let store = MapStore::create(path, &identity)?;
-            let mut session = Session::new(config)?;
-            keep_freed_blocks(&mut session, &store)?;
-            run.store = Some(store);
-            return Ok((session, run, 0));
-        }
-        let (opened, saved) = MapStore::open(path)?;
-        store::check_identity(path, &saved.identity, &identity)?;
-        if saved.position > total {
+        let (session, checkpoints, position) =
+            checkpoints::start(path, config, source()?, self.checkpoint_every, self.resume)
+                .with_context(|| format!("--store {}", path.display()))?;
+        if position > total {
             bail!(
-                "--store {}: it has read {} frames but the run has {total}",
+                "--store {}: it has read {position} frames but the run has {total}",
                 path.display(),
-                saved.position,
             );
         }
-        let position = saved.position;
-        let mut session = Session::resume(config, saved.session)?;
-        keep_freed_blocks(&mut session, &opened)?;
-        run.store = Some(opened);
-        run.resumed_at = Some(position);
+        let run = StoreRun {
+            checkpoints: Some(checkpoints),
+            total,
+            position,
+        };
         Ok((session, run, position))
     }
-}
-
-/// With bounded memory (`--active-radius`), the blocks the camera leaves
-/// go to the store and come back from it when the camera returns.
-fn keep_freed_blocks(session: &mut Session, store: &MapStore) -> Result<()> {
-    if let Some(t) = session.backend_mut().tsdf_mut() {
-        if t.active_radius().is_some() {
-            t.set_archive(Box::new(store.archive()))?;
-        }
-    }
-    Ok(())
 }
 
 impl StoreRun {
     /// After a frame (`position` selected frames read): commits a
     /// checkpoint when one is due, and after the last frame.
     pub fn after_frame(&mut self, session: &Session, position: usize) -> Result<()> {
-        let Some(store) = &mut self.store else {
-            return Ok(());
-        };
-        self.since += 1;
-        if self.since < self.every && position < self.total {
-            return Ok(());
+        self.position = position;
+        match &mut self.checkpoints {
+            Some(c) => Ok(c.after_frame(session, position, position >= self.total)?),
+            None => Ok(()),
         }
-        let c = store.checkpoint(session, position)?;
-        self.since = 0;
-        self.checkpoints += 1;
-        self.blocks += c.blocks;
-        self.bytes += c.bytes;
-        self.ms += c.ms;
-        Ok(())
     }
 
     /// Waits for the last commit and adds the store's figures to a run's
     /// summary.
-    pub fn summarise(&mut self, summary: &mut Map<String, Value>) -> Result<()> {
-        let Some(store) = &mut self.store else {
-            return Ok(());
-        };
-        store.finish()?;
-        summary.insert(
-            "store".into(),
-            json!({
-                "checkpoints": self.checkpoints,
-                "blocks_written": self.blocks,
-                "bytes_written": self.bytes,
-                "stall_ms_mean": self.ms / self.checkpoints.max(1) as f64,
-                "stall_ms_total": self.ms,
-                "resumed_at_position": self.resumed_at,
-            }),
-        );
+    pub fn summarise(&mut self, session: &Session, summary: &mut Map<String, Value>) -> Result<()> {
+        if let Some(c) = &mut self.checkpoints {
+            summary.insert("store".into(), c.finish(session, self.position)?);
+        }
         Ok(())
     }
 }

@@ -49,6 +49,11 @@ pub struct StreamArgs {
     /// Let the server estimate poses by ICP (only the first frame's pose is sent).
     #[arg(long)]
     pub track: bool,
+    /// Continue the --session of this name from the server's store of it
+    /// (`serve --store`): only the frames after the last one it mapped are
+    /// sent.
+    #[arg(long, requires = "session")]
+    pub resume: bool,
     /// Depth codec: default, levels, rvl, png or raw.
     #[arg(long, default_value = "default")]
     pub codec: Codec,
@@ -108,6 +113,7 @@ pub fn run(args: &StreamArgs, quiet: bool) -> Result<()> {
         track: args.track,
         status_every: args.status_every,
         reply_timeout: std::time::Duration::from_secs(args.timeout.max(1)),
+        resume: args.resume,
     };
     let bar = progress::bar(source.len() as u64, "stream", quiet);
     let runtime = tokio::runtime::Runtime::new().context("cannot start the client's runtime")?;

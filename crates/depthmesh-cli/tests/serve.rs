@@ -136,3 +136,90 @@ fn refusals_name_their_reason() {
     );
     std::fs::remove_dir_all(dir).unwrap();
 }
+
+#[test]
+fn a_server_killed_mid_session_continues_it_from_its_store() {
+    let dir = scratch("serve-store");
+    let frames = dir.join("frames");
+    std::fs::create_dir_all(&frames).unwrap();
+    simulated_frames_folder(&frames, 40);
+    let f = frames.to_str().unwrap();
+    let offline = dir.join("offline");
+    let o = offline.to_str().unwrap();
+    ok(&depthmesh(&[
+        "reconstruct",
+        f,
+        "--voxel",
+        "0.02",
+        "--track",
+        "--quiet",
+        "--out",
+        o,
+    ]));
+    let server = dir.join("server");
+    let flags = ["--voxel", "0.02", "--store", "--checkpoint-every", "4"];
+    let served = Served::start(&server, &flags);
+    let first = dir.join("first");
+    let mut args = stream_args(&served, f, first.to_str().unwrap());
+    // At 20 frames/s, not as fast as the server maps.
+    let rate = args.iter().position(|a| *a == "max").unwrap();
+    args[rate] = "20";
+    args.extend(["--session", "walk", "--track"]);
+    let mut client = std::process::Command::new(env!("CARGO_BIN_EXE_depthmesh"))
+        .args(&args)
+        .stdout(std::process::Stdio::null())
+        .stderr(std::process::Stdio::null())
+        .spawn()
+        .unwrap();
+    // Halfway through the 2 s the client takes at 20 frames/s.
+    std::thread::sleep(std::time::Duration::from_millis(1000));
+    drop(served); // SIGKILL
+    assert!(
+        !client.wait().unwrap().success(),
+        "the client outlived its server"
+    );
+    let served = Served::start(&server, &flags);
+    let second = dir.join("second");
+    let mut args = stream_args(&served, f, second.to_str().unwrap());
+    args.extend(["--session", "walk", "--track", "--resume"]);
+    ok(&depthmesh(&args));
+    let s: Value =
+        serde_json::from_str(&std::fs::read_to_string(second.join("summary.json")).unwrap())
+            .unwrap();
+    let sent = s["frames_sent"].as_u64().unwrap();
+    assert!(sent > 0 && sent < 40, "{sent} frames sent after the crash");
+    // The session ends as one never interrupted: the offline run's mesh and trajectory.
+    for file in ["mesh.ply", "trajectory.txt"] {
+        assert!(
+            std::fs::read(server.join("walk").join(file)).unwrap()
+                == std::fs::read(offline.join(file)).unwrap(),
+            "{file}"
+        );
+    }
+    assert!(
+        std::fs::read(second.join("mesh.ply")).unwrap()
+            == std::fs::read(offline.join("mesh.ply")).unwrap()
+    );
+    let summary = common::summary(&server.join("walk"));
+    assert_eq!(summary["frames"], 40, "{summary}");
+    // A new session may not take a name whose store is there, and a server
+    // without stores continues nothing.
+    let mut args = stream_args(
+        &served,
+        f,
+        dir.join("again").to_str().unwrap().to_owned().leak(),
+    );
+    args.extend(["--session", "walk"]);
+    assert_fails_with(&depthmesh(&args), &["--resume"]);
+    drop(served);
+    let plain = Served::start(&dir.join("plain"), &["--voxel", "0.02"]);
+    let mut args = stream_args(
+        &plain,
+        f,
+        dir.join("none").to_str().unwrap().to_owned().leak(),
+    );
+    args.extend(["--session", "walk", "--resume"]);
+    assert_fails_with(&depthmesh(&args), &["no stores"]);
+    drop(plain);
+    std::fs::remove_dir_all(dir).unwrap();
+}

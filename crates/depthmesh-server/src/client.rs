@@ -70,6 +70,9 @@ pub struct StreamOptions {
     pub status_every: u32,
     /// Give up when the server says nothing for this long.
     pub reply_timeout: Duration,
+    /// Continue the named session from the server's store of it: only the
+    /// frames after the last one it mapped are sent.
+    pub resume: bool,
 }
 
 /// Live figures, for a progress display.
@@ -131,13 +134,18 @@ pub async fn stream(
         track: options.track,
         realtime: options.realtime,
         status_every: options.status_every,
+        resume: options.resume,
     };
     let text = serde_json::to_string(&hello).expect("messages serialise");
     ws.send(Message::text(text))
         .await
         .map_err(|e| format!("cannot send to {url}: {e}"))?;
-    let (session, window) = match next_message(&mut ws, options.reply_timeout).await? {
-        Incoming::Json(ServerMessage::Welcome { session, window }) => (session, window.max(1)),
+    let (session, window, last_frame) = match next_message(&mut ws, options.reply_timeout).await? {
+        Incoming::Json(ServerMessage::Welcome {
+            session,
+            window,
+            last_frame,
+        }) => (session, window.max(1), last_frame),
         Incoming::Json(ServerMessage::Error { message }) => {
             return Err(format!("the server refused the session: {message}"))
         }
@@ -149,7 +157,7 @@ pub async fn stream(
     let codec = options.codec;
     let track = options.track;
     let total = source.len();
-    std::thread::spawn(move || encode_frames(source.as_mut(), codec, track, frames_tx));
+    std::thread::spawn(move || encode_frames(source.as_mut(), codec, track, last_frame, frames_tx));
 
     let mut p = Progress::default();
     let mut sent_at: HashMap<u64, Instant> = HashMap::new();
@@ -326,17 +334,25 @@ fn client_summary(
 type Encoded = (u64, Vec<u8>, usize);
 
 /// Reads, encodes and hands over frames until the source ends: the frame's
-/// index, its message and the depth payload's size.
+/// index, its message and the depth payload's size. A continued session
+/// (`last_frame`: the last one it mapped) is sent the frames after it only,
+/// and a tracked one no pose: its tracker goes on from where it was.
 fn encode_frames(
     source: &mut dyn FrameSource,
     codec: Codec,
     track: bool,
+    last_frame: Option<u64>,
     to: mpsc::Sender<Result<Encoded, String>>,
 ) {
     let mut raw = RawDepth::default();
     let mut encoder = Encoder::new(codec);
-    let mut first = true;
+    let mut first = last_frame.is_none();
     while let Some(frame) = source.next_frame(&mut raw) {
+        if let (Ok(f), Some(last)) = (&frame, last_frame) {
+            if f.index <= last {
+                continue;
+            }
+        }
         let item = frame.map(|f| {
             let mut message = FrameMessage {
                 index: f.index,

@@ -14,6 +14,7 @@ use crate::worker::{Inbox, Job, Out, Progress, Worker};
 use axum::extract::ws::{Message, WebSocket};
 use depthmesh::session::run_files::RunFiles;
 use depthmesh::session::{Session, SessionConfig};
+use depthmesh::store::checkpoints;
 use futures_util::stream::{SplitSink, SplitStream};
 use futures_util::{SinkExt, StreamExt};
 use std::sync::atomic::{AtomicU64, Ordering};
@@ -22,12 +23,17 @@ use std::time::{SystemTime, UNIX_EPOCH};
 use tokio::sync::mpsc;
 use tokio::time::timeout;
 
+/// A session's store, in its folder (servers with stores).
+const STORE: &str = "map.store";
+
 type Tx = SplitSink<WebSocket, Message>;
 type Rx = SplitStream<WebSocket>;
 
 /// An open session, as its connection sees it.
 struct Opened {
     name: String,
+    /// A continued session: the last frame it had mapped.
+    last_frame: Option<u64>,
     inbox: Arc<Inbox>,
     out: mpsc::UnboundedReceiver<Out>,
     realtime: bool,
@@ -51,6 +57,7 @@ pub async fn handle(socket: WebSocket, shared: Arc<Shared>) {
     let welcome = ServerMessage::Welcome {
         session: opened.name.clone(),
         window: shared.options.limits.window,
+        last_frame: opened.last_frame,
     };
     let _ = send_json(&mut tx, &welcome).await;
     serve(&shared, &mut opened, &mut tx, &mut rx).await;
@@ -213,6 +220,7 @@ fn open(shared: &Shared, text: &str) -> Result<Opened, String> {
         track,
         realtime,
         status_every,
+        resume,
     } = hello
     else {
         return Err("the first message must be a hello".into());
@@ -235,12 +243,36 @@ fn open(shared: &Shared, text: &str) -> Result<Opened, String> {
             k.width, k.height, limits.max_frame_pixels
         ));
     }
-    let session = Session::new(SessionConfig {
+    let config = SessionConfig {
         intrinsics: k,
         map: (shared.options.map)(k),
         tracking: track.then(|| shared.options.tracker.clone()),
-    })
-    .map_err(|e| e.to_string())?;
+    };
+    let (session, checkpoints) = match shared.options.checkpoint_every {
+        Some(every) => {
+            // Checked again below, when the session is registered; here so
+            // that a live session's store is not opened twice.
+            if mapping_now(shared, &name) {
+                return Err(format!(
+                    "session {name} is mapping now: choose another name"
+                ));
+            }
+            let folder = dir(shared, &name);
+            std::fs::create_dir_all(&folder)
+                .map_err(|e| format!("cannot prepare the session's folder: {e}"))?;
+            // The session's frames are whatever its client sends under its name.
+            let source = serde_json::json!({ "session": name });
+            let (session, checkpoints, _) =
+                checkpoints::start(&folder.join(STORE), config, source, every, resume)
+                    .map_err(|e| format!("session {name}: {e}"))?;
+            (session, Some(checkpoints))
+        }
+        None if resume => {
+            return Err("this server keeps no stores: sessions cannot be continued".into())
+        }
+        None => (Session::new(config).map_err(|e| e.to_string())?, None),
+    };
+    let last_frame = session.records().last().map(|r| r.frame as u64);
     let progress = Arc::new(Mutex::new(Progress::default()));
     let inbox = Arc::new(Inbox::default());
     let view = Arc::new(ViewHub::new(view_info(&name, &session)));
@@ -277,6 +309,7 @@ fn open(shared: &Shared, text: &str) -> Result<Opened, String> {
     };
     let worker = Worker {
         session,
+        checkpoints,
         files,
         depth_range: shared.options.depth_range,
         max_pixels: limits.max_frame_pixels,
@@ -296,11 +329,18 @@ fn open(shared: &Shared, text: &str) -> Result<Opened, String> {
         k.width, k.height
     );
     Ok(Opened {
+        last_frame,
         name,
         inbox,
         out: out_rx,
         realtime,
     })
+}
+
+/// Whether the session `name` is mapping now.
+fn mapping_now(shared: &Shared, name: &str) -> bool {
+    let sessions = shared.sessions.lock().expect("sessions lock");
+    sessions.get(name).is_some_and(|e| e.inbox.is_some())
 }
 
 /// What a viewer is told of a session first: its back-end, its camera,

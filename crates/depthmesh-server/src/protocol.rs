@@ -7,7 +7,7 @@
 //! ```text
 //! client                                   server
 //! Hello {token, intrinsics, ...}   ─►
-//!                                  ◄─   Welcome {session, window}
+//!                                  ◄─   Welcome {session, window, last_frame}
 //! frame (DMF1, binary)             ─►                              (×N, at most
 //!                                  ◄─   Verdict {frame, pose, ...}  `window` in
 //!                                  ◄─   status image (DMS1, JPEG)   flight)
@@ -58,6 +58,10 @@ pub enum ClientMessage {
         /// Send a status image every this many mapped frames (0: never).
         #[serde(default)]
         status_every: u32,
+        /// Continue the named session from its store's last checkpoint (a
+        /// server with stores); the welcome says which frame it ended at.
+        #[serde(default)]
+        resume: bool,
     },
     /// No more frames: finish the session and send its summary and mesh.
     End,
@@ -73,6 +77,10 @@ pub enum ServerMessage {
         session: String,
         /// Frames the client may have in flight (sent, no verdict yet).
         window: u32,
+        /// A continued session: the index of the last frame it mapped
+        /// (send the frames after it).
+        #[serde(default, skip_serializing_if = "Option::is_none")]
+        last_frame: Option<u64>,
     },
     /// What became of one frame.
     Verdict(Verdict),
@@ -325,6 +333,7 @@ mod tests {
             track: true,
             realtime: false,
             status_every: 5,
+            resume: true,
         };
         let text = serde_json::to_string(&hello).unwrap();
         assert_eq!(serde_json::from_str::<ClientMessage>(&text).unwrap(), hello);

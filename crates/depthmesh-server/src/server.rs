@@ -81,6 +81,10 @@ pub struct ServeOptions {
     pub tracker: TrackerConfig,
     /// Each session's map, from its camera.
     pub map: Box<MapFactory>,
+    /// Sessions keep their maps in a store, `out/<session>/map.store`,
+    /// checkpointed every this many frames, and a client may continue a
+    /// session from it (`None`: no stores).
+    pub checkpoint_every: Option<u32>,
 }
 
 /// A session the server knows of.

@@ -11,6 +11,7 @@ use depthmesh::mesh::Mesh;
 use depthmesh::session::run_files::RunFiles;
 use depthmesh::session::status::StatusImage;
 use depthmesh::session::{FrameRecord, Session};
+use depthmesh::store::checkpoints::Checkpoints;
 use depthmesh::track::pyramid::half;
 use depthmesh::{DepthImage, Frame, Intrinsics, Pose};
 use serde_json::{Map, Value};
@@ -108,6 +109,8 @@ pub struct Progress {
 pub struct Worker {
     /// The session.
     pub session: Session,
+    /// Its store's checkpoints, on a server with stores.
+    pub checkpoints: Option<Checkpoints>,
     /// Its files (`OUT/<session>/`); chunk files are written as blocks are evicted.
     pub files: RunFiles,
     /// Depth outside this range (metres) is dropped, as the dataset readers do.
@@ -241,6 +244,11 @@ impl Worker {
         self.files
             .after_frame(&mut self.session)
             .map_err(|e| format!("frame {}: {e}", msg.index))?;
+        if let Some(c) = &mut self.checkpoints {
+            let mapped = self.session.records().len();
+            c.after_frame(&self.session, mapped, false)
+                .map_err(|e| format!("frame {}: {e}", msg.index))?;
+        }
         let mut p = self.progress.lock().expect("progress lock");
         p.frames += 1;
         p.elements = verdict.elements;
@@ -252,8 +260,16 @@ impl Worker {
         if self.session.records().is_empty() {
             return Err("the session ended before any frame was mapped".into());
         }
+        let mut summary = Map::new();
+        if let Some(c) = &mut self.checkpoints {
+            let mapped = self.session.records().len();
+            let store = c
+                .finish(&self.session, mapped)
+                .map_err(|e| format!("cannot checkpoint the session: {e}"))?;
+            summary.insert("store".into(), store);
+        }
         self.files
-            .finish(&mut self.session, Map::new())
+            .finish(&mut self.session, summary)
             .map_err(|e| format!("cannot write the session's files: {e}"))
     }
 }

@@ -111,6 +111,7 @@ fn scratch(name: &str) -> PathBuf {
 
 async fn start(out: &Path, limits: Limits) -> Server {
     Server::start(ServeOptions {
+        checkpoint_every: None,
         bind: "127.0.0.1:0".parse().unwrap(),
         token: TOKEN.into(),
         out: out.to_path_buf(),
@@ -134,6 +135,7 @@ fn options(server: &Server, session: &str) -> StreamOptions {
         track: false,
         status_every: 2,
         reply_timeout: WAIT,
+        resume: false,
     }
 }
 
@@ -278,6 +280,7 @@ async fn connect(server: &Server) -> Socket {
 
 fn hello(session: &str, k: Intrinsics) -> Message {
     let m = ClientMessage::Hello {
+        resume: false,
         token: TOKEN.into(),
         session: Some(session.into()),
         intrinsics: k,

@@ -23,6 +23,7 @@
 
 pub mod archive;
 pub mod block_codec;
+pub mod checkpoints;
 pub mod records;
 
 use archive::{Encoded, Shelf, StoreArchive};
