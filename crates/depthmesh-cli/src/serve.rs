@@ -47,7 +47,7 @@ pub struct ServeArgs {
     pub window: u32,
     /// Each session keeps its map in OUT/<session>/map.store, checkpointed
     /// as it goes; after a crash, `stream --session NAME --resume` continues
-    /// it (TSDF maps).
+    /// it (tsdf, planes and mabdi maps).
     #[arg(long)]
     pub store: bool,
     /// With --store: commit a checkpoint every this many frames.

@@ -14,7 +14,7 @@ use std::path::{Path, PathBuf};
 #[derive(Args, Debug, Clone)]
 pub struct StoreArgs {
     /// Write the map to this store (one file) in checkpoints, to continue
-    /// it with --resume after a crash (TSDF maps for now). With
+    /// it with --resume after a crash (tsdf, planes and mabdi maps). With
     /// --active-radius, blocks the camera leaves go to the store and come
     /// back when it returns.
     #[arg(long)]

@@ -60,31 +60,57 @@ fn a_run_killed_and_resumed_ends_as_one_never_interrupted() {
     std::fs::remove_dir_all(dir).unwrap();
 }
 
-#[test]
-fn a_simulated_run_killed_and_resumed_sees_the_same_noisy_frames() {
-    let dir = scratch("store-simulate");
-    let make = |out: &Path, extra: &[&str]| {
-        let mut c = Command::new(env!("CARGO_BIN_EXE_depthmesh"));
-        c.args([
-            "simulate", "--scene", TABLE, "--map", "tsdf", "--voxel", "0.02",
-        ])
-        .args([
-            "--noise",
-            "kinect",
-            "--seed",
-            "7",
-            "--iterations",
-            "24",
-            "--track",
-        ])
+/// `simulate` of `scene` with `args` into `out`, then `extra`, quiet.
+fn simulate(scene: &str, args: &[&str], out: &Path, extra: &[&str]) -> Command {
+    let mut c = Command::new(env!("CARGO_BIN_EXE_depthmesh"));
+    c.args(["simulate", "--scene", scene])
+        .args(args)
         .args(["--quiet", "--out", out.to_str().unwrap()])
         .args(extra)
         .stdout(Stdio::null())
         .stderr(Stdio::piped());
-        c
-    };
+    c
+}
+
+#[test]
+fn a_simulated_run_killed_and_resumed_sees_the_same_noisy_frames() {
+    let dir = scratch("store-simulate");
+    let args = [
+        "--map",
+        "tsdf",
+        "--voxel",
+        "0.02",
+        "--noise",
+        "kinect",
+        "--seed",
+        "7",
+        "--iterations",
+        "24",
+        "--track",
+    ];
+    let make = |out: &Path, extra: &[&str]| simulate(TABLE, &args, out, extra);
     killed_and_resumed(&dir, make, 24, true);
     std::fs::remove_dir_all(dir).unwrap();
+}
+
+#[test]
+fn mabdi_and_planes_runs_killed_and_resumed_end_as_never_interrupted() {
+    for map in ["mabdi", "planes"] {
+        let dir = scratch(&format!("store-{map}"));
+        let args = [
+            "--map",
+            map,
+            "--noise",
+            "kinect",
+            "--seed",
+            "3",
+            "--iterations",
+            "30",
+        ];
+        let make = |out: &Path, extra: &[&str]| simulate(TABLE, &args, out, extra);
+        killed_and_resumed(&dir, make, 30, false);
+        std::fs::remove_dir_all(dir).unwrap();
+    }
 }
 
 /// Kills a run with `--store` (made by `make(out, extra flags)`) at seeded
@@ -117,7 +143,12 @@ fn killed_and_resumed(
     let info: serde_json::Value = serde_json::from_slice(&info.stdout).unwrap();
     assert_eq!(info["records"], frames);
     assert_eq!(info["tracked"], track, "{info}");
-    assert!(info["blocks"].as_u64().unwrap() > 0);
+    let held = match info["map"].as_str().unwrap() {
+        "tsdf" => "blocks",
+        "planes" => "cells",
+        _ => "triangles",
+    };
+    assert!(info[held].as_u64().unwrap() > 0, "{info}");
     // The store exports as the mesh the run wrote does.
     let exported = |input: &Path, name: &str| -> usize {
         let glb = dir.join(name);
@@ -218,17 +249,17 @@ fn a_bounded_walk_there_and_back_killed_and_resumed_equals_the_unbounded_map() {
     let (poses, frames) = there_and_back(&dir, 16.0);
     let path = format!("tum:{}", poses.display());
     let iterations = frames.to_string();
-    let make = |out: &Path, extra: &[&str]| {
-        let mut c = Command::new(env!("CARGO_BIN_EXE_depthmesh"));
-        c.args(["simulate", "--scene", CORRIDOR])
-            .args(["--map", "tsdf", "--voxel", "0.05", "--path", &path])
-            .args(["--iterations", &iterations, "--quiet"])
-            .args(["--out", out.to_str().unwrap()])
-            .args(extra)
-            .stdout(Stdio::null())
-            .stderr(Stdio::piped());
-        c
-    };
+    let args = [
+        "--map",
+        "tsdf",
+        "--voxel",
+        "0.05",
+        "--path",
+        &path,
+        "--iterations",
+        &iterations,
+    ];
+    let make = |out: &Path, extra: &[&str]| simulate(CORRIDOR, &args, out, extra);
     let unbounded = dir.join("unbounded");
     let start = Instant::now();
     assert!(make(&unbounded, &[]).status().unwrap().success());

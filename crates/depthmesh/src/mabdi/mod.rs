@@ -166,6 +166,22 @@ impl MabdiConfig {
     }
 }
 
+/// What a MABDI map carries from frame to frame, to save and put back:
+/// M, its iteration, the removal votes per triangle and M's patches.
+#[derive(Clone, Debug, PartialEq)]
+pub struct MabdiState {
+    /// The global mesh M (positions, colours, triangles).
+    pub mesh: Mesh,
+    /// Frames integrated.
+    pub iteration: u32,
+    /// Removal votes per triangle (empty without removal).
+    pub votes: Vec<u8>,
+    /// M's patches (see [`settle::Patches::saved`]).
+    pub patches: Vec<settle::SavedPatch>,
+    /// The id the next patch gets.
+    pub next_patch: u32,
+}
+
 /// The MABDI map: a global mesh grown by novel surface only.
 #[derive(Debug)]
 pub struct MabdiMapper {
@@ -243,6 +259,43 @@ impl MabdiMapper {
             remap: Vec::new(),
             chunks,
         })
+    }
+
+    /// The map's state, to save (a copy).
+    pub fn state(&self) -> MabdiState {
+        let (patches, next_patch) = self.patches.saved();
+        MabdiState {
+            mesh: self.mesh.clone(),
+            iteration: self.iteration,
+            votes: self.carver.votes.clone(),
+            patches,
+            next_patch,
+        }
+    }
+
+    /// Puts back a saved state: the map continues as the one that saved it.
+    pub fn restore(&mut self, state: MabdiState) -> Result<()> {
+        state
+            .mesh
+            .check()
+            .map_err(|m| Error::parameter("saved mesh", m))?;
+        let patches = settle::Patches::restore(&state.patches, state.next_patch);
+        let triangles = state.mesh.triangle_count();
+        let votes_fit = state.votes.is_empty() || state.votes.len() == triangles;
+        if patches.triangles() != triangles || !votes_fit {
+            return Err(Error::parameter(
+                "saved map",
+                "its patches or votes do not cover its triangles",
+            ));
+        }
+        self.mesh = state.mesh;
+        self.iteration = state.iteration;
+        self.carver.votes = state.votes;
+        self.patches = patches;
+        self.chunks = ChunkBounds::default();
+        self.chunks
+            .extend(&self.mesh.positions, &self.mesh.triangles);
+        Ok(())
     }
 
     /// The expected depth image E of the last frame.

@@ -68,7 +68,59 @@ pub struct Patches {
     changed: Option<Vec<u32>>,
 }
 
+/// A patch as saved: id, triangles, the iteration it last changed at,
+/// whether it is done, and the pose that saw it (rotation columns, then
+/// translation) if known.
+pub type SavedPatch = (u32, usize, u32, bool, Option<[f32; 12]>);
+
 impl Patches {
+    /// The patches and the next patch's id, to save.
+    pub fn saved(&self) -> (Vec<SavedPatch>, u32) {
+        let patches = self
+            .patches
+            .iter()
+            .map(|p| {
+                let pose = p.pose.map(|pose| {
+                    let mut a = [0.0; 12];
+                    a[..9].copy_from_slice(&pose.rotation.to_cols_array());
+                    a[9..].copy_from_slice(&pose.translation.to_array());
+                    a
+                });
+                (p.id, p.len, p.changed, p.done, pose)
+            })
+            .collect();
+        (patches, self.next_id)
+    }
+
+    /// Patches as [`Patches::saved`] gave them.
+    pub fn restore(patches: &[SavedPatch], next_id: u32) -> Self {
+        let patches = patches
+            .iter()
+            .map(|&(id, len, changed, done, pose)| Patch {
+                id,
+                len,
+                pose: pose.map(|a| {
+                    Pose::new(
+                        glam::Mat3::from_cols_slice(&a[..9]),
+                        glam::Vec3::new(a[9], a[10], a[11]),
+                    )
+                }),
+                changed,
+                done,
+            })
+            .collect();
+        Patches {
+            patches,
+            next_id,
+            changed: None,
+        }
+    }
+
+    /// Triangles the patches hold.
+    pub fn triangles(&self) -> usize {
+        self.patches.iter().map(|p| p.len).sum()
+    }
+
     /// Numbers a new patch and notes it for viewers.
     fn new_id(&mut self) -> u32 {
         let id = self.next_id;

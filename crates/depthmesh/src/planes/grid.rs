@@ -20,6 +20,9 @@ use std::hash::BuildHasherDefault;
 /// 20 MB per cell.
 const MAX_CELL_VOXELS: usize = 256;
 
+/// A cell as saved: its key and its voxels, x fastest.
+pub type SavedCell = (IVec3, Box<[VoxelStats]>);
+
 /// Sizes of the two levels.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct PlaneGridConfig {
@@ -155,6 +158,10 @@ pub struct PlaneGrid {
     keys: Vec<IVec3>,
     /// Each cell's n³ voxels, x fastest.
     cells: Vec<Box<[VoxelStats]>>,
+    /// Per cell, the insertion that last changed it (0: not since restored).
+    stamps: Vec<u32>,
+    /// Insertions so far.
+    inserts: u32,
     /// Voxels holding at least one point.
     occupied: usize,
 }
@@ -170,8 +177,48 @@ impl PlaneGrid {
             index: CellIndex::default(),
             keys: Vec::new(),
             cells: Vec::new(),
+            stamps: Vec::new(),
+            inserts: 0,
             occupied: 0,
         })
+    }
+
+    /// Insertions so far ([`PlaneGrid::insert_points`], [`PlaneGrid::insert_stats`]).
+    pub fn inserts(&self) -> u32 {
+        self.inserts
+    }
+
+    /// The cells allocated or changed by insertions after the `since`-th, in
+    /// allocation order: slot, key and voxels (x fastest).
+    pub fn cells_changed_after(&self, since: u32) -> Vec<(usize, IVec3, &[VoxelStats])> {
+        (0..self.cells.len())
+            .filter(|&s| self.stamps[s] > since)
+            .map(|s| (s, self.keys[s], &*self.cells[s]))
+            .collect()
+    }
+
+    /// Puts back cells saved after `inserts` insertions, in their
+    /// allocation order, into an empty grid: it continues as the one saved.
+    pub fn restore(&mut self, cells: Vec<SavedCell>, inserts: u32) -> Result<()> {
+        let voxels = (self.n as usize).pow(3);
+        if !self.cells.is_empty() {
+            return Err(Error::parameter("plane grid", "restored into a used grid"));
+        }
+        for (key, cell) in cells {
+            if cell.len() != voxels || self.index.contains_key(&key) {
+                return Err(Error::parameter(
+                    "plane grid",
+                    format!("saved cell ({}, {}, {}) does not fit", key.x, key.y, key.z),
+                ));
+            }
+            self.occupied += cell.iter().filter(|s| s.count > 0).count();
+            self.index.insert(key, self.cells.len() as u32);
+            self.keys.push(key);
+            self.cells.push(cell);
+            self.stamps.push(0);
+        }
+        self.inserts = inserts;
+        Ok(())
     }
 
     /// The sizes.
@@ -256,6 +303,7 @@ impl PlaneGrid {
         voxel: impl Fn(&T) -> Option<IVec3> + Sync,
         add: impl Fn(&mut VoxelStats, &T) + Sync,
     ) -> Inserted {
+        self.inserts += 1;
         // Bin in parallel (an indexed map, so the output is allocated once);
         // cells already in the index get their slot here (consecutive items
         // mostly share a cell, so the last one is remembered), new ones are
@@ -318,10 +366,12 @@ impl PlaneGrid {
         let n = self.n;
         let mut rest = &mut sorted[..];
         let mut jobs: Vec<CellJob> = Vec::new();
-        for (s, (cell, &key)) in self.cells.iter_mut().zip(&self.keys).enumerate() {
+        let cells = self.cells.iter_mut().zip(&self.keys).zip(&mut self.stamps);
+        for (s, ((cell, &key), stamp)) in cells.enumerate() {
             let (mine, tail) = rest.split_at_mut(starts[s + 1] - starts[s]);
             rest = tail;
             if !mine.is_empty() {
+                *stamp = self.inserts;
                 jobs.push((key, &mut **cell, mine));
             }
         }
@@ -372,6 +422,7 @@ impl PlaneGrid {
             let voxels = (self.n as usize).pow(3);
             self.cells
                 .push(vec![VoxelStats::EMPTY; voxels].into_boxed_slice());
+            self.stamps.push(self.inserts);
         }
         slot
     }

@@ -197,6 +197,28 @@ impl PlanesMapper {
         &self.grid
     }
 
+    /// Frames integrated.
+    pub fn frames(&self) -> u32 {
+        self.frames
+    }
+
+    /// Puts back the statistics of a map saved after `frames` frames and
+    /// `inserts` grid insertions (see [`PlaneGrid::restore`]); its planes
+    /// are found again from them when next meshed.
+    pub fn restore(
+        &mut self,
+        cells: Vec<crate::planes::grid::SavedCell>,
+        frames: u32,
+        inserts: u32,
+    ) -> Result<()> {
+        self.grid.restore(cells, inserts)?;
+        self.dirty = self.grid.occupied_voxels().map(|(v, _)| v).collect();
+        self.dirty_unique = 0;
+        self.frames = frames;
+        self.assembled = false;
+        Ok(())
+    }
+
     /// Adds world points directly (a point cloud rather than a depth frame);
     /// returns how many were added.
     pub fn insert_points(&mut self, points: &[Vec3]) -> usize {

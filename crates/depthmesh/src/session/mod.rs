@@ -50,14 +50,45 @@ pub struct SessionConfig {
 pub struct Resumed {
     /// A record per frame mapped.
     pub records: Vec<FrameRecord>,
-    /// The TSDF's blocks.
-    pub blocks: Vec<crate::tsdf::Block>,
-    /// Frames the map had fused.
-    pub frames: u32,
-    /// The pose and depth of the last fused frame.
-    pub last_view: Option<(Pose, crate::image::DepthImage)>,
+    /// The map.
+    pub map: SavedMap,
     /// The tracking state, when poses were tracked.
     pub poses: Option<PoseState>,
+}
+
+/// A saved map, by back-end.
+#[derive(Debug)]
+pub enum SavedMap {
+    /// A TSDF volume.
+    Tsdf {
+        /// Its blocks (with bounded memory, those that were in memory).
+        blocks: Vec<crate::tsdf::Block>,
+        /// Frames it had fused.
+        frames: u32,
+        /// The pose and depth of the last fused frame.
+        last_view: Option<(Pose, crate::image::DepthImage)>,
+    },
+    /// Voxel-plane statistics.
+    Planes {
+        /// The grid's cells in allocation order: key and voxels.
+        cells: Vec<crate::planes::grid::SavedCell>,
+        /// Frames integrated.
+        frames: u32,
+        /// The grid's insertions.
+        inserts: u32,
+    },
+    /// A MABDI map.
+    Mabdi(crate::mabdi::MabdiState),
+}
+
+impl SavedMap {
+    /// Frames the map had integrated.
+    pub fn frames(&self) -> u32 {
+        match self {
+            SavedMap::Tsdf { frames, .. } | SavedMap::Planes { frames, .. } => *frames,
+            SavedMap::Mabdi(m) => m.iteration,
+        }
+    }
 }
 
 /// What became of one frame: a row of the run's `stats.csv`.
@@ -158,17 +189,33 @@ impl Session {
     /// tracked, the tracking state.
     pub fn resume(config: SessionConfig, saved: Resumed) -> Result<Self> {
         let mut session = Session::new(config)?;
-        match &mut session.backend {
-            Backend::Tsdf(t) => {
-                t.restore(saved.blocks, saved.frames)?;
-                if let Some(view) = saved.last_view {
+        match (&mut session.backend, saved.map) {
+            (
+                Backend::Tsdf(t),
+                SavedMap::Tsdf {
+                    blocks,
+                    frames,
+                    last_view,
+                },
+            ) => {
+                t.restore(blocks, frames)?;
+                if let Some(view) = last_view {
                     t.set_last_view(view);
                 }
             }
+            (
+                Backend::Planes(p),
+                SavedMap::Planes {
+                    cells,
+                    frames,
+                    inserts,
+                },
+            ) => p.restore(cells, frames, inserts)?,
+            (Backend::Mabdi(m), SavedMap::Mabdi(state)) => m.restore(state)?,
             _ => {
                 return Err(Error::parameter(
                     "map",
-                    "only TSDF sessions can be continued yet",
+                    "the saved map is of another back-end, or one that cannot be continued",
                 ))
             }
         }

@@ -8,21 +8,25 @@
 //!
 //! | table | key | value |
 //! |---|---|---|
-//! | `meta` | name | `format` (u64), `identity` (JSON: settings, camera, dataset), `checkpoint` (JSON: frames fused, dataset position, time), `tracking` (JSON: the tracker's state), `last_view` (the last fused frame's pose and depth, from which ray casting for tracking starts), `resident` (bounded memory: the keys of the blocks in memory, LZ4-compressed `i32` triples) |
+//! | `meta` | name | `format` (u64), `identity` (JSON: settings, camera, dataset), `checkpoint` (JSON: frames integrated, dataset position, time), `tracking` (JSON: the tracker's state), `last_view` (TSDF: the last fused frame's pose and depth, from which ray casting for tracking starts), `resident` (TSDF with bounded memory: the keys of the blocks in memory, LZ4-compressed `i32` triples), `planes` (JSON: the grid's insertions), `mabdi` (JSON: iteration, patches, array lengths) |
 //! | `blocks` | TSDF block coordinates | the block's distances, weights (and colours), LZ4-compressed ([`block_codec`]) |
+//! | `cells` | voxel-plane cell, by allocation order | its key and voxel statistics, LZ4-compressed (`cells`) |
+//! | `arrays` | (MABDI array, chunk number) | a chunk of M's positions, colours, triangles or removal votes, LZ4-compressed (`arrays`) |
 //! | `records` | frame order | the frame's record (pose, timings, map size) as JSON ([`records`]) |
 //!
-//! A checkpoint writes, in one transaction, the blocks changed or allocated
-//! since the previous checkpoint and the records since it, so its cost
-//! follows what the frames changed, not the map's size. With bounded
-//! memory the store is also where freed blocks go and come back from
-//! ([`archive`]); it then holds the whole map, and a continued session
-//! loads only the blocks that were in memory. For now the store holds TSDF
-//! sessions (given or tracked poses; the other back-ends' maps are not
-//! saved yet).
+//! A checkpoint writes, in one transaction, what changed since the previous
+//! one — the TSDF blocks fused into, the plane cells added to, the chunks of
+//! M whose bytes differ — and the records since it, so its cost follows what
+//! the frames changed, not the map's size. With bounded memory the store is
+//! also where freed TSDF blocks go and come back from ([`archive`]); it then
+//! holds the whole map, and a continued session loads only the blocks that
+//! were in memory. The traditional (naive) back-end is not stored: its map
+//! is every frame's surface, which a run can make again.
 
 pub mod archive;
+mod arrays;
 pub mod block_codec;
+mod cells;
 pub mod checkpoints;
 pub mod records;
 
@@ -31,9 +35,10 @@ use archive::{Encoded, Shelf, StoreArchive};
 use crate::camera::Pose;
 use crate::error::{Error, Result};
 use crate::image::DepthImage;
-use crate::session::{Backend, MapConfig, PoseState, Resumed, Session, SessionConfig};
+use crate::session::{Backend, MapConfig, PoseState, Resumed, SavedMap, Session, SessionConfig};
 use crate::track::TrackerState;
 use crate::tsdf::archive::BlockArchive;
+use crate::tsdf::mapper::TsdfMapper;
 use crate::tsdf::KeyMap;
 use rayon::prelude::*;
 use redb::{Database, ReadableDatabase, ReadableTable, TableDefinition};
@@ -57,6 +62,10 @@ pub struct MapStore {
     path: PathBuf,
     /// Frames fused at the last checkpoint, and freed blocks not committed yet.
     shelf: Arc<Mutex<Shelf>>,
+    /// Planes: grid insertions at the last checkpoint.
+    saved_inserts: u32,
+    /// MABDI: the hashes of the chunks of M the store holds.
+    hashes: arrays::Hashes,
     /// Whether the blocks hold colours.
     color: bool,
     /// Records written so far.
@@ -72,8 +81,10 @@ pub struct Saved {
     /// The session's state at the last checkpoint (with bounded memory,
     /// only the blocks that were in memory).
     pub session: Resumed,
-    /// Blocks in the store.
+    /// Blocks in the store (TSDF maps).
     pub stored_blocks: usize,
+    /// The hashes of the chunks of a MABDI map the store holds.
+    hashes: arrays::Hashes,
 }
 
 /// What a checkpoint wrote.
@@ -92,29 +103,63 @@ pub struct Checkpoint {
 /// The settings of `config` that a continued session must share with the
 /// one that wrote a store, as JSON; `dataset` says where frames come from.
 pub fn identity(config: &SessionConfig, dataset: Value) -> Result<Value> {
-    let MapConfig::Tsdf(t) = &config.map else {
-        return Err(Error::parameter(
-            "map",
-            "the map store holds TSDF maps for now",
-        ));
-    };
     let k = &config.intrinsics;
-    let c = &t.config;
-    Ok(json!({
+    let mut id = match &config.map {
+        MapConfig::Tsdf(t) => {
+            let c = &t.config;
+            json!({
+                "map": "tsdf",
+                "voxel": c.voxel,
+                "truncation": c.truncation,
+                "max_weight": c.max_weight,
+                "min_weight": c.min_weight,
+                "color": c.color,
+                "range": [t.range.0, t.range.1],
+                "active_radius": t.active_radius,
+            })
+        }
+        MapConfig::Planes(p) => json!({
+            "map": "planes",
+            "voxel": p.config.grid.voxel,
+            "cell": p.config.grid.cell,
+            "epsilon": p.config.epsilon,
+        }),
+        // Its settings as a whole (the camera in them is the session's).
+        MapConfig::Mabdi(m) => json!({"map": "mabdi", "settings": format!("{m:?}")}),
+        MapConfig::Naive(_) => {
+            return Err(Error::parameter(
+                "map",
+                "the map store holds tsdf, planes and mabdi maps, not naive",
+            ))
+        }
+    };
+    let common = json!({
         "format": FORMAT,
-        "map": "tsdf",
-        "voxel": c.voxel,
-        "truncation": c.truncation,
-        "max_weight": c.max_weight,
-        "min_weight": c.min_weight,
-        "color": c.color,
-        "range": [t.range.0, t.range.1],
-        "active_radius": t.active_radius,
         "camera": [k.width, k.height, k.fx, k.fy, k.cx, k.cy],
         // The tracker's settings as a whole: any change is refused.
         "tracking": config.tracking.as_ref().map(|t| format!("{t:?}")),
         "dataset": dataset,
-    }))
+    });
+    if let (Some(id), Value::Object(common)) = (id.as_object_mut(), common) {
+        id.extend(common);
+    }
+    Ok(id)
+}
+
+/// Writes a map's part of a checkpoint in the commit's transaction.
+type WriteFn =
+    Box<dyn FnOnce(&redb::WriteTransaction) -> std::result::Result<(), redb::Error> + Send>;
+
+/// The part of a checkpoint that depends on the back-end, prepared on the
+/// frame thread: what to write, run in the commit's transaction.
+struct MapWrite {
+    /// Frames the map had integrated.
+    frames: u32,
+    /// Blocks or cells written.
+    units: usize,
+    /// Bytes handed to the commit.
+    bytes: usize,
+    write: WriteFn,
 }
 
 impl MapStore {
@@ -139,6 +184,8 @@ impl MapStore {
             meta.insert("identity", identity.to_string().as_bytes())?;
             txn.open_table(BLOCKS)?;
             txn.open_table(RECORDS)?;
+            txn.open_table(cells::CELLS)?;
+            txn.open_table(arrays::ARRAYS)?;
             Ok(())
         })?;
         drop(db);
@@ -171,11 +218,16 @@ impl MapStore {
             writing: None,
             path: path.to_path_buf(),
             shelf: Arc::new(Mutex::new(Shelf {
-                saved_frames: saved.session.frames,
+                saved_frames: saved.session.map.frames(),
                 ..Shelf::default()
             })),
             color: colour(&saved.identity),
             saved_records: saved.session.records.len(),
+            saved_inserts: match &saved.session.map {
+                SavedMap::Planes { inserts, .. } => *inserts,
+                _ => 0,
+            },
+            hashes: saved.hashes.clone(),
         };
         Ok((store, saved))
     }
@@ -201,12 +253,67 @@ impl MapStore {
     pub fn checkpoint(&mut self, session: &Session, position: usize) -> Result<Checkpoint> {
         let start = Instant::now();
         self.finish()?;
-        let Backend::Tsdf(t) = session.backend() else {
-            return Err(Error::parameter(
-                "map",
-                "the map store holds TSDF maps for now",
-            ));
+        let map = match session.backend() {
+            Backend::Tsdf(t) => self.tsdf_write(t),
+            Backend::Planes(p) => {
+                let w = cells::write(p, self.saved_inserts);
+                self.saved_inserts = p.grid().inserts();
+                w
+            }
+            Backend::Mabdi(m) => arrays::write(m, self.hashes.clone()),
+            Backend::Naive(_) => {
+                return Err(Error::parameter(
+                    "map",
+                    "the map store holds tsdf, planes and mabdi maps, not naive",
+                ))
+            }
         };
+        let first = self.saved_records;
+        let rows: Vec<String> = session.records()[first..]
+            .iter()
+            .map(records::encode)
+            .collect();
+        let tracking = session
+            .pose_state()
+            .map(|p| pose_state_json(&p).to_string());
+        let checkpoint = json!({
+            "frames": map.frames,
+            "position": position,
+            "records": first + rows.len(),
+            "unix_seconds": std::time::SystemTime::now()
+                .duration_since(std::time::UNIX_EPOCH)
+                .map_or(0, |d| d.as_secs()),
+        })
+        .to_string();
+        let (db, path) = (self.db.clone(), self.path.clone());
+        let (units, bytes, write_map) = (map.units, map.bytes, map.write);
+        self.writing = Some(std::thread::spawn(move || {
+            write(&db, &path, |txn| {
+                write_map(txn)?;
+                let mut table = txn.open_table(RECORDS)?;
+                for (i, row) in rows.iter().enumerate() {
+                    table.insert((first + i) as u64, row.as_bytes())?;
+                }
+                let mut meta = txn.open_table(META)?;
+                if let Some(tracking) = &tracking {
+                    meta.insert("tracking", tracking.as_bytes())?;
+                }
+                meta.insert("checkpoint", checkpoint.as_bytes())?;
+                Ok(())
+            })
+        }));
+        self.saved_records = session.records().len();
+        Ok(Checkpoint {
+            blocks: units,
+            bytes,
+            ms: start.elapsed().as_secs_f64() * 1e3,
+        })
+    }
+
+    /// A TSDF map's part of a checkpoint: the blocks changed since the last
+    /// one, those freed since (bounded memory), which blocks are in memory,
+    /// and the last fused view.
+    fn tsdf_write(&mut self, t: &TsdfMapper) -> MapWrite {
         let volume = t.volume();
         let mut shelf = self.shelf.lock().unwrap_or_else(|e| e.into_inner());
         // Changed blocks, new ones included even if nothing was fused into
@@ -230,6 +337,7 @@ impl MapStore {
         blocks.extend(changed);
         let blocks = Arc::new(blocks);
         shelf.committing = blocks.clone();
+        shelf.saved_frames = volume.frames();
         let bytes = blocks.values().map(Vec::len).sum();
         let resident = t.archived().then(|| {
             let raw: Vec<u8> = volume
@@ -240,57 +348,26 @@ impl MapStore {
                 .collect();
             lz4_flex::compress_prepend_size(&raw)
         });
-        let first = self.saved_records;
-        let rows: Vec<String> = session.records()[first..]
-            .iter()
-            .map(records::encode)
-            .collect();
-        let frames = volume.frames();
-        let tracking = session
-            .pose_state()
-            .map(|p| pose_state_json(&p).to_string());
         let last_view = t.last_view().map(|(pose, depth)| view_bytes(pose, depth));
-        let checkpoint = json!({
-            "frames": frames,
-            "position": position,
-            "records": first + rows.len(),
-            "unix_seconds": std::time::SystemTime::now()
-                .duration_since(std::time::UNIX_EPOCH)
-                .map_or(0, |d| d.as_secs()),
-        })
-        .to_string();
-        let (db, path) = (self.db.clone(), self.path.clone());
-        self.writing = Some(std::thread::spawn(move || {
-            write(&db, &path, |txn| {
+        MapWrite {
+            frames: volume.frames(),
+            units: keys.len() + freed,
+            bytes,
+            write: Box::new(move |txn| {
                 let mut table = txn.open_table(BLOCKS)?;
                 for (key, b) in blocks.iter() {
                     table.insert((key.x, key.y, key.z), b.as_slice())?;
                 }
-                let mut table = txn.open_table(RECORDS)?;
-                for (i, row) in rows.iter().enumerate() {
-                    table.insert((first + i) as u64, row.as_bytes())?;
-                }
                 let mut meta = txn.open_table(META)?;
-                if let Some(tracking) = &tracking {
-                    meta.insert("tracking", tracking.as_bytes())?;
-                }
                 if let Some(view) = &last_view {
                     meta.insert("last_view", view.as_slice())?;
                 }
                 if let Some(resident) = &resident {
                     meta.insert("resident", resident.as_slice())?;
                 }
-                meta.insert("checkpoint", checkpoint.as_bytes())?;
                 Ok(())
-            })
-        }));
-        shelf.saved_frames = frames;
-        self.saved_records = session.records().len();
-        Ok(Checkpoint {
-            blocks: keys.len() + freed,
-            bytes,
-            ms: start.elapsed().as_secs_f64() * 1e3,
-        })
+            }),
+        }
     }
 
     /// Waits for the last checkpoint's commit; its error, if it failed.
@@ -380,6 +457,40 @@ pub fn mesh(path: &Path) -> Result<crate::mesh::Mesh> {
     let id = &saved.identity;
     let bad = |k: &str| Error::format(path, format!("identity: no {k}"));
     let number = |k: &str| id[k].as_f64().ok_or_else(|| bad(k));
+    match saved.session.map {
+        SavedMap::Tsdf { .. } => {}
+        SavedMap::Mabdi(state) => return Ok(state.mesh),
+        SavedMap::Planes {
+            cells,
+            frames,
+            inserts,
+        } => {
+            use crate::planes::{PlaneGridConfig, PlanesConfig, PlanesMapper};
+            let config = PlanesConfig {
+                grid: PlaneGridConfig {
+                    voxel: number("voxel")? as f32,
+                    cell: number("cell")? as f32,
+                },
+                epsilon: number("epsilon")?,
+            };
+            let camera: Vec<f64> = id["camera"]
+                .as_array()
+                .map(|c| c.iter().filter_map(Value::as_f64).collect())
+                .filter(|c: &Vec<f64>| c.len() == 6)
+                .ok_or_else(|| bad("camera"))?;
+            let k = crate::camera::Intrinsics {
+                width: camera[0] as u32,
+                height: camera[1] as u32,
+                fx: camera[2] as f32,
+                fy: camera[3] as f32,
+                cx: camera[4] as f32,
+                cy: camera[5] as f32,
+            };
+            let mut planes = PlanesMapper::new(config, k)?;
+            planes.restore(cells, frames, inserts)?;
+            return Ok(crate::map::Mapper::mesh(&mut planes).clone());
+        }
+    }
     let weight = |k: &str| {
         id[k]
             .as_u64()
@@ -419,11 +530,23 @@ pub fn info(path: &Path) -> Result<Value> {
     Ok(json!({
         "store": path.display().to_string(),
         "format": FORMAT,
-        "frames": saved.session.frames,
+        "map": saved.identity["map"],
+        "frames": saved.session.map.frames(),
         "records": saved.session.records.len(),
         "dataset_position": saved.position,
         "blocks": saved.stored_blocks,
-        "resident_blocks": saved.session.blocks.len(),
+        "resident_blocks": match &saved.session.map {
+            SavedMap::Tsdf { blocks, .. } => Some(blocks.len()),
+            _ => None,
+        },
+        "cells": match &saved.session.map {
+            SavedMap::Planes { cells, .. } => Some(cells.len()),
+            _ => None,
+        },
+        "triangles": match &saved.session.map {
+            SavedMap::Mabdi(m) => Some(m.mesh.triangle_count()),
+            _ => None,
+        },
         "tracked": saved.session.poses.is_some(),
         "voxels": voxels,
         "file_bytes": size,
@@ -444,6 +567,8 @@ fn read_saved(db: &Database, path: &Path) -> Result<Saved> {
         let tracking = meta.get("tracking")?.map(|v| v.value().to_vec());
         let last_view = meta.get("last_view")?.map(|v| v.value().to_vec());
         let resident = meta.get("resident")?.map(|v| v.value().to_vec());
+        let mabdi = meta.get("mabdi")?.map(|v| v.value().to_vec());
+        let planes = meta.get("planes")?.map(|v| v.value().to_vec());
         let mut blocks = Vec::new();
         for entry in txn.open_table(BLOCKS)?.iter()? {
             let (k, v) = entry?;
@@ -455,11 +580,15 @@ fn read_saved(db: &Database, path: &Path) -> Result<Saved> {
             records.push(v.value().to_vec());
         }
         Ok((
-            format, identity, checkpoint, tracking, last_view, resident, blocks, records,
+            [
+                format, identity, checkpoint, tracking, last_view, resident, mabdi, planes,
+            ],
+            blocks,
+            records,
         ))
     };
-    let (format, identity, checkpoint, tracking, last_view, resident, blocks, records) =
-        read().map_err(|e| store_error(path, e))?;
+    let (meta, blocks, records) = read().map_err(|e| store_error(path, e))?;
+    let [format, identity, checkpoint, tracking, last_view, resident, mabdi, planes] = meta;
     let format = format
         .and_then(|f| <[u8; 8]>::try_from(f.as_slice()).ok())
         .map(u64::from_le_bytes)
@@ -488,11 +617,86 @@ fn read_saved(db: &Database, path: &Path) -> Result<Saved> {
     if number("records")? as usize != records.len() {
         return Err(bad("checkpoint and records disagree".into()));
     }
-    let color = colour(&identity);
+    let records = records
+        .iter()
+        .enumerate()
+        .map(|(i, r)| records::decode(r).map_err(|e| bad(format!("record {i}: {e}"))))
+        .collect::<Result<Vec<_>>>()?;
+    let poses = match tracking {
+        Some(t) => Some(pose_state_from(&json(Some(t), "tracking")?).map_err(bad)?),
+        None => None,
+    };
+    let hashes = arrays::Hashes::default();
     let stored_blocks = blocks.len();
+    let map = match identity["map"].as_str() {
+        Some("tsdf") => {
+            let last_view = last_view
+                .map(|v| view_from(&v).map_err(|e| bad(format!("last view: {e}"))))
+                .transpose()?;
+            tsdf_saved(&identity, blocks, resident, frames, last_view).map_err(bad)?
+        }
+        // The map parts of the others are read in a second transaction
+        // (nothing writes between: the store is held open by this process).
+        Some("planes") => {
+            let planes = match planes {
+                Some(p) => json(Some(p), "planes")?,
+                None => json!({"inserts": 0}),
+            };
+            let per_side = identity["cell"].as_f64().unwrap_or(0.0)
+                / identity["voxel"].as_f64().unwrap_or(1.0);
+            let voxels = (per_side.round() as usize).pow(3);
+            let txn = db.begin_read().map_err(|e| store_error(path, e))?;
+            SavedMap::Planes {
+                cells: cells::read(&txn, voxels).map_err(bad)?,
+                frames,
+                inserts: planes["inserts"]
+                    .as_u64()
+                    .and_then(|i| u32::try_from(i).ok())
+                    .ok_or_else(|| bad("planes: no inserts".into()))?,
+            }
+        }
+        Some("mabdi") => match mabdi {
+            Some(m) => {
+                let txn = db.begin_read().map_err(|e| store_error(path, e))?;
+                let meta = json(Some(m), "mabdi")?;
+                SavedMap::Mabdi(arrays::read(&txn, &meta, &hashes).map_err(bad)?)
+            }
+            None => SavedMap::Mabdi(crate::mabdi::MabdiState {
+                mesh: crate::mesh::Mesh::default(),
+                iteration: 0,
+                votes: Vec::new(),
+                patches: Vec::new(),
+                next_patch: 0,
+            }),
+        },
+        other => return Err(bad(format!("identity: map {other:?}"))),
+    };
+    Ok(Saved {
+        identity,
+        position,
+        session: Resumed {
+            records,
+            map,
+            poses,
+        },
+        stored_blocks,
+        hashes,
+    })
+}
+
+/// A TSDF map as saved: the blocks (with bounded memory, those that were
+/// in memory: `resident`), decoded.
+fn tsdf_saved(
+    identity: &Value,
+    blocks: Vec<((i32, i32, i32), Vec<u8>)>,
+    resident: Option<Vec<u8>>,
+    frames: u32,
+    last_view: Option<(Pose, DepthImage)>,
+) -> std::result::Result<SavedMap, String> {
+    let color = colour(identity);
     // With bounded memory, only the blocks that were in memory.
     let resident: Option<KeyMap<()>> = resident
-        .map(|r| resident_keys(&r).map_err(|e| bad(format!("resident blocks: {e}"))))
+        .map(|r| resident_keys(&r).map_err(|e| format!("resident blocks: {e}")))
         .transpose()?;
     let blocks = blocks
         .into_iter()
@@ -503,32 +707,13 @@ fn read_saved(db: &Database, path: &Path) -> Result<Saved> {
         })
         .map(|((x, y, z), bytes)| {
             block_codec::decode(glam::IVec3::new(x, y, z), &bytes, color)
-                .map_err(|e| bad(format!("block ({x}, {y}, {z}): {e}")))
+                .map_err(|e| format!("block ({x}, {y}, {z}): {e}"))
         })
-        .collect::<Result<Vec<_>>>()?;
-    let records = records
-        .iter()
-        .enumerate()
-        .map(|(i, r)| records::decode(r).map_err(|e| bad(format!("record {i}: {e}"))))
-        .collect::<Result<Vec<_>>>()?;
-    let poses = match tracking {
-        Some(t) => Some(pose_state_from(&json(Some(t), "tracking")?).map_err(bad)?),
-        None => None,
-    };
-    let last_view = last_view
-        .map(|v| view_from(&v).map_err(|e| bad(format!("last view: {e}"))))
-        .transpose()?;
-    Ok(Saved {
-        identity,
-        position,
-        session: Resumed {
-            records,
-            blocks,
-            frames,
-            last_view,
-            poses,
-        },
-        stored_blocks,
+        .collect::<std::result::Result<Vec<_>, String>>()?;
+    Ok(SavedMap::Tsdf {
+        blocks,
+        frames,
+        last_view,
     })
 }
 
