@@ -1,16 +1,18 @@
 #!/usr/bin/env bash
-# What the map store costs: `reconstruct` of the 7-Scenes kitchen (TSDF,
-# 1 cm, given poses) with and without `--store` at the default checkpoint
-# interval (30 frames), alternating, ROUNDS rounds each; wall-clock frames/s
-# of the whole run, the checkpoints' own time, and the store's bytes per
-# voxel beside the 4 bytes a voxel takes in memory.
+# What the map store costs: `reconstruct` of the 7-Scenes kitchen (given
+# poses; MAP tsdf at 1 cm, planes or mabdi, each with its defaults) with and
+# without `--store` at the default checkpoint interval (30 frames),
+# alternating, ROUNDS rounds each; wall-clock frames/s of the whole run, the
+# checkpoints' own time, and the store's size (for tsdf, bytes per voxel
+# beside the 4 bytes a voxel takes in memory).
 #
-# Usage: bench/store_checkpoint.sh [FRAMES] [ROUNDS]   (defaults 300, 3)
+# Usage: bench/store_checkpoint.sh [FRAMES] [ROUNDS] [MAP]   (defaults 300, 3, tsdf)
 # Needs ../shared beside the repository (or DEPTHMESH_SHARED).
 set -euo pipefail
 cd "$(dirname "$0")/.."
 frames=${1:-300}
 rounds=${2:-3}
+map=${3:-tsdf}
 need_kitchen=1
 source bench/setup.sh
 bin=./target/release/depthmesh
@@ -19,7 +21,7 @@ for r in $(seq "$rounds"); do
     extra=()
     [[ $mode == store ]] && extra=(--store "$work/$mode-$r.store")
     start=$(date +%s.%N)
-    "$bin" reconstruct "$data" --frames "0..$frames" --quiet --out "$work/$mode-$r" "${extra[@]}" >/dev/null
+    "$bin" reconstruct "$data" --frames "0..$frames" --map "$map" --quiet --out "$work/$mode-$r" "${extra[@]}" >/dev/null
     end=$(date +%s.%N)
     echo "$mode $r $start $end" >>"$work/times"
   done
@@ -39,8 +41,12 @@ print(f"with --store / without: {ratio:.3f} ({(1 - ratio) * 100:+.1f} % slower)"
 s = json.load(open(f"{work}/store-1/summary.json"))["store"]
 info = json.load(open(f"{work}/info.json"))
 print(f"checkpoints: {s['checkpoints']}, frame loop held up {s['stall_ms_mean']:.1f} ms each, {s['stall_ms_total']:.0f} ms in all; "
-      f"{s['blocks_written']} blocks, {s['bytes_written']} compressed bytes written")
-print(f"store: {info['blocks']} blocks, {info['voxels']} voxels; compressed blocks "
-      f"{s['bytes_written'] / max(1, s['blocks_written']) / 512:.2f} B/voxel as written, file "
-      f"{info['file_bytes']} B = {info['file_bytes_per_voxel']:.2f} B/voxel (in memory: 4 B/voxel)")
+      f"{s['blocks_written']} blocks or cells, {s['bytes_written']} bytes handed to the commits")
+if info["map"] == "tsdf":
+    print(f"store: {info['blocks']} blocks, {info['voxels']} voxels; compressed blocks "
+          f"{s['bytes_written'] / max(1, s['blocks_written']) / 512:.2f} B/voxel as written, file "
+          f"{info['file_bytes']} B = {info['file_bytes_per_voxel']:.2f} B/voxel (in memory: 4 B/voxel)")
+else:
+    held = f"{info['cells']} cells" if info["map"] == "planes" else f"{info['triangles']} triangles"
+    print(f"store: {info['map']}, {held}, file {info['file_bytes']} B")
 PY

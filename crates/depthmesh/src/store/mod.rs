@@ -370,6 +370,33 @@ impl MapStore {
         }
     }
 
+    /// Waits for the last commit, then gives the space of the map's earlier
+    /// versions back to the file system (a run's last step: it takes about
+    /// as long as writing the store's live data once). Skipped while the
+    /// store is also a bounded map's archive (in use). Returns the file's
+    /// size before and after.
+    pub fn compact(&mut self) -> Result<(u64, u64)> {
+        self.finish()?;
+        let size = || {
+            std::fs::metadata(&self.path)
+                .map(|m| m.len())
+                .map_err(|e| Error::io(&self.path, e))
+        };
+        let before = size()?;
+        if let Some(db) = Arc::get_mut(&mut self.db) {
+            while db
+                .compact()
+                .map_err(|e| Error::format(&self.path, format!("map store: {e}")))?
+            {}
+        }
+        Ok((before, size()?))
+    }
+
+    /// The store's file.
+    pub fn path(&self) -> &Path {
+        &self.path
+    }
+
     /// Waits for the last checkpoint's commit; its error, if it failed.
     pub fn finish(&mut self) -> Result<()> {
         let Some(handle) = self.writing.take() else {
