@@ -41,7 +41,7 @@ print(f"with --store / without: {ratio:.3f} ({(1 - ratio) * 100:+.1f} % slower)"
 s = json.load(open(f"{work}/store-1/summary.json"))["store"]
 info = json.load(open(f"{work}/info.json"))
 print(f"checkpoints: {s['checkpoints']}, frame loop held up {s['stall_ms_mean']:.1f} ms each, {s['stall_ms_total']:.0f} ms in all; "
-      f"{s['blocks_written']} blocks or cells, {s['bytes_written']} bytes handed to the commits")
+      f"{s['blocks_written']} blocks or cells, {s['bytes_copied']} bytes copied for the commits, {s['bytes_written']} compressed bytes written")
 if info["map"] == "tsdf":
     print(f"store: {info['blocks']} blocks, {info['voxels']} voxels; compressed blocks "
           f"{s['bytes_written'] / max(1, s['blocks_written']) / 512:.2f} B/voxel as written, file "

@@ -2,11 +2,12 @@
 //! [`crate::tsdf::archive`]): blocks the camera leaves are kept in the
 //! store's `blocks` table and read back from it when the camera returns.
 //!
-//! A block that leaves memory changed since the last checkpoint is encoded
-//! at once and waits in memory for the next checkpoint, which commits it
-//! with the rest; one unchanged since is dropped (the store holds it as it
-//! is). Reads look at what waits, then at what the running commit writes,
-//! then at the store, so a block is always read back as it was freed.
+//! A block that leaves memory changed since the last checkpoint waits in
+//! memory, as it is, for the next checkpoint, which commits it with the
+//! rest (compressed on the commit's thread); one unchanged since is dropped
+//! (the store holds it as it is). Reads look at what waits, then at what the
+//! running commit writes, then at the store, so a block is always read back
+//! as it was freed.
 
 use super::{block_codec, store_error, BLOCKS};
 use crate::error::{Error, Result};
@@ -18,8 +19,8 @@ use redb::{Database, ReadableDatabase, ReadableTable};
 use std::path::PathBuf;
 use std::sync::{Arc, Mutex, MutexGuard};
 
-/// Encoded blocks by key.
-pub(super) type Encoded = KeyMap<Vec<u8>>;
+/// Blocks on their way to the store, by key.
+pub(super) type Waiting = KeyMap<Block>;
 
 /// What the store and its archive share: blocks on their way to the store.
 #[derive(Debug, Default)]
@@ -28,9 +29,9 @@ pub(super) struct Shelf {
     /// is not in the store as it is.
     pub saved_frames: u32,
     /// Blocks freed since the last checkpoint that it did not hold as they are.
-    pub pending: Encoded,
-    /// Everything the running commit writes, until it has committed.
-    pub committing: Arc<Encoded>,
+    pub pending: Waiting,
+    /// Every block the running commit writes, until it has committed.
+    pub committing: Arc<Waiting>,
 }
 
 /// The archive handed to a bounded map; shares the store's database.
@@ -82,31 +83,24 @@ impl BlockArchive for StoreArchive {
     fn put(&mut self, blocks: Vec<(Block, u32)>) -> Result<()> {
         let mut shelf = self.shelf();
         let since = shelf.saved_frames;
-        let encoded: Vec<(IVec3, Vec<u8>)> = blocks
-            .into_par_iter()
-            .filter(|(_, fused)| *fused > since)
-            .map(|(block, _)| {
-                let mut bytes = Vec::new();
-                block_codec::encode(&block, &mut bytes);
-                (block.key, bytes)
-            })
-            .collect();
-        shelf.pending.extend(encoded);
+        let changed = blocks.into_iter().filter(|(_, fused)| *fused > since);
+        shelf.pending.extend(changed.map(|(b, _)| (b.key, b)));
         Ok(())
     }
 
     fn get(&self, keys: &[IVec3]) -> Result<Vec<Block>> {
-        let mut found: Vec<(IVec3, Vec<u8>)> = Vec::with_capacity(keys.len());
+        let mut blocks = Vec::with_capacity(keys.len());
         let mut rest = Vec::new();
         {
             let shelf = self.shelf();
             for &k in keys {
                 match shelf.pending.get(&k).or_else(|| shelf.committing.get(&k)) {
-                    Some(bytes) => found.push((k, bytes.clone())),
+                    Some(block) => blocks.push(block.clone()),
                     None => rest.push(k),
                 }
             }
         }
+        let mut found: Vec<(IVec3, Vec<u8>)> = Vec::with_capacity(rest.len());
         if !rest.is_empty() {
             let read = || -> std::result::Result<_, redb::Error> {
                 let txn = self.db.begin_read()?;
@@ -127,9 +121,11 @@ impl BlockArchive for StoreArchive {
                 found.push((k, bytes));
             }
         }
-        found
+        let read: Vec<Block> = found
             .par_iter()
             .map(|(k, bytes)| self.decode(*k, bytes))
-            .collect()
+            .collect::<Result<_>>()?;
+        blocks.extend(read);
+        Ok(blocks)
     }
 }

@@ -44,13 +44,16 @@ pub(super) fn write(mabdi: &MabdiMapper, hashes: Hashes) -> MapWrite {
             let mut table = txn.open_table(ARRAYS)?;
             let mut hashes = hashes.lock().unwrap_or_else(|e| e.into_inner());
             let arrays = arrays(&state);
+            let mut written = 0;
             for (name, data) in NAMES.iter().zip(&arrays) {
                 let chunks = data.len().div_ceil(CHUNK) as u64;
                 for (i, chunk) in data.chunks(CHUNK).enumerate() {
                     let key = (*name, i as u64);
                     let h = hash(chunk);
                     if hashes.get(&key) != Some(&h) {
-                        table.insert(key, lz4_flex::compress_prepend_size(chunk).as_slice())?;
+                        let compressed = lz4_flex::compress_prepend_size(chunk);
+                        written += compressed.len();
+                        table.insert(key, compressed.as_slice())?;
                         hashes.insert(key, h);
                     }
                 }
@@ -75,7 +78,7 @@ pub(super) fn write(mabdi: &MabdiMapper, hashes: Hashes) -> MapWrite {
             .to_string();
             txn.open_table(super::META)?
                 .insert("mabdi", meta.as_bytes())?;
-            Ok(())
+            Ok(written)
         }),
     }
 }

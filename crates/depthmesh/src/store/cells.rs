@@ -27,7 +27,7 @@ pub(super) fn write(planes: &PlanesMapper, since: u32) -> MapWrite {
         .into_par_iter()
         .map(|(slot, key, voxels)| (slot as u64, encode(key, voxels)))
         .collect();
-    let bytes = cells.iter().map(|(_, b)| b.len()).sum();
+    let bytes: usize = cells.iter().map(|(_, b)| b.len()).sum();
     let meta = serde_json::json!({"inserts": planes.grid().inserts()}).to_string();
     MapWrite {
         frames: planes.frames(),
@@ -40,7 +40,7 @@ pub(super) fn write(planes: &PlanesMapper, since: u32) -> MapWrite {
             }
             txn.open_table(super::META)?
                 .insert("planes", meta.as_bytes())?;
-            Ok(())
+            Ok(bytes)
         }),
     }
 }

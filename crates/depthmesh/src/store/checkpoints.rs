@@ -16,6 +16,7 @@ pub struct Checkpoints {
     since: u32,
     count: usize,
     blocks: usize,
+    /// Bytes copied on the frame thread for the commits (before compression).
     bytes: usize,
     ms: f64,
     /// The dataset position the session was continued from.
@@ -106,7 +107,8 @@ impl Checkpoints {
             "file_bytes": after,
             "checkpoints": self.count,
             "blocks_written": self.blocks,
-            "bytes_written": self.bytes,
+            "bytes_copied": self.bytes,
+            "bytes_written": self.store.bytes_written(),
             "stall_ms_mean": self.ms / self.count.max(1) as f64,
             "stall_ms_total": self.ms,
             "resumed_at_position": self.resumed_at,

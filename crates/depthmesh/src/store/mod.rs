@@ -30,7 +30,7 @@ mod cells;
 pub mod checkpoints;
 pub mod records;
 
-use archive::{Encoded, Shelf, StoreArchive};
+use archive::{Shelf, StoreArchive, Waiting};
 
 use crate::camera::Pose;
 use crate::error::{Error, Result};
@@ -58,7 +58,9 @@ const RECORDS: TableDefinition<u64, &[u8]> = TableDefinition::new("records");
 pub struct MapStore {
     db: Arc<Database>,
     /// The commit of the last checkpoint, running beside the frame loop.
-    writing: Option<std::thread::JoinHandle<Result<()>>>,
+    writing: Option<std::thread::JoinHandle<Result<usize>>>,
+    /// Compressed bytes the commits so far wrote.
+    written: usize,
     path: PathBuf,
     /// Frames fused at the last checkpoint, and freed blocks not committed yet.
     shelf: Arc<Mutex<Shelf>>,
@@ -90,13 +92,14 @@ pub struct Saved {
 /// What a checkpoint wrote.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct Checkpoint {
-    /// Blocks written (changed since the previous checkpoint).
+    /// TSDF blocks or plane cells written (changed since the previous
+    /// checkpoint); 0 for MABDI, whose chunks are chosen by the commit.
     pub blocks: usize,
-    /// Compressed bytes of those blocks.
+    /// Bytes copied for the commit (compressed, for plane cells).
     pub bytes: usize,
     /// Milliseconds the frame loop was held up: waiting for the previous
-    /// commit, and copying and compressing the changed blocks (the commit
-    /// itself runs on its own thread).
+    /// commit, and copying what changed (compressing and writing it runs
+    /// on the commit's own thread; plane cells are compressed here).
     pub ms: f64,
 }
 
@@ -146,9 +149,10 @@ pub fn identity(config: &SessionConfig, dataset: Value) -> Result<Value> {
     Ok(id)
 }
 
-/// Writes a map's part of a checkpoint in the commit's transaction.
+/// Writes a map's part of a checkpoint in the commit's transaction;
+/// returns the (compressed) bytes it wrote.
 type WriteFn =
-    Box<dyn FnOnce(&redb::WriteTransaction) -> std::result::Result<(), redb::Error> + Send>;
+    Box<dyn FnOnce(&redb::WriteTransaction) -> std::result::Result<usize, redb::Error> + Send>;
 
 /// The part of a checkpoint that depends on the back-end, prepared on the
 /// frame thread: what to write, run in the commit's transaction.
@@ -157,7 +161,7 @@ struct MapWrite {
     frames: u32,
     /// Blocks or cells written.
     units: usize,
-    /// Bytes handed to the commit.
+    /// Bytes copied for the commit, before compression.
     bytes: usize,
     write: WriteFn,
 }
@@ -216,6 +220,7 @@ impl MapStore {
         let store = MapStore {
             db: Arc::new(db),
             writing: None,
+            written: 0,
             path: path.to_path_buf(),
             shelf: Arc::new(Mutex::new(Shelf {
                 saved_frames: saved.session.map.frames(),
@@ -289,7 +294,7 @@ impl MapStore {
         let (units, bytes, write_map) = (map.units, map.bytes, map.write);
         self.writing = Some(std::thread::spawn(move || {
             write(&db, &path, |txn| {
-                write_map(txn)?;
+                let bytes = write_map(txn)?;
                 let mut table = txn.open_table(RECORDS)?;
                 for (i, row) in rows.iter().enumerate() {
                     table.insert((first + i) as u64, row.as_bytes())?;
@@ -299,7 +304,7 @@ impl MapStore {
                     meta.insert("tracking", tracking.as_bytes())?;
                 }
                 meta.insert("checkpoint", checkpoint.as_bytes())?;
-                Ok(())
+                Ok(bytes)
             })
         }));
         self.saved_records = session.records().len();
@@ -319,26 +324,26 @@ impl MapStore {
         // Changed blocks, new ones included even if nothing was fused into
         // them yet: ray casting treats a block that is there but empty
         // otherwise than one that is not, so the continued map must hold the same.
+        // Copied here, compressed on the commit's thread: the frame loop
+        // waits for a copy only.
         let keys = volume.changed_after(shelf.saved_frames);
-        let changed: Vec<(glam::IVec3, Vec<u8>)> = keys
+        let changed: Vec<(glam::IVec3, crate::tsdf::Block)> = keys
             .par_iter()
             .map(|key| {
-                let mut bytes = Vec::new();
-                block_codec::encode(
-                    volume.block(*key).expect("changed blocks are held"),
-                    &mut bytes,
-                );
-                (*key, bytes)
+                (
+                    *key,
+                    volume.block(*key).expect("changed blocks are held").clone(),
+                )
             })
             .collect();
         // Blocks freed since, then the resident ones (newer where both).
-        let mut blocks: Encoded = std::mem::take(&mut shelf.pending);
+        let mut blocks: Waiting = std::mem::take(&mut shelf.pending);
         let freed = blocks.len();
         blocks.extend(changed);
         let blocks = Arc::new(blocks);
         shelf.committing = blocks.clone();
         shelf.saved_frames = volume.frames();
-        let bytes = blocks.values().map(Vec::len).sum();
+        let bytes = blocks.len() * crate::tsdf::BLOCK_VOXELS * volume.config().bytes_per_voxel();
         let resident = t.archived().then(|| {
             let raw: Vec<u8> = volume
                 .blocks()
@@ -355,8 +360,12 @@ impl MapStore {
             bytes,
             write: Box::new(move |txn| {
                 let mut table = txn.open_table(BLOCKS)?;
-                for (key, b) in blocks.iter() {
-                    table.insert((key.x, key.y, key.z), b.as_slice())?;
+                let mut bytes = Vec::new();
+                let mut written = 0;
+                for (key, block) in blocks.iter() {
+                    block_codec::encode(block, &mut bytes);
+                    written += bytes.len();
+                    table.insert((key.x, key.y, key.z), bytes.as_slice())?;
                 }
                 let mut meta = txn.open_table(META)?;
                 if let Some(view) = &last_view {
@@ -365,7 +374,7 @@ impl MapStore {
                 if let Some(resident) = &resident {
                     meta.insert("resident", resident.as_slice())?;
                 }
-                Ok(())
+                Ok(written)
             }),
         }
     }
@@ -392,6 +401,11 @@ impl MapStore {
         Ok((before, size()?))
     }
 
+    /// Compressed bytes of the map the commits finished so far wrote.
+    pub fn bytes_written(&self) -> usize {
+        self.written
+    }
+
     /// The store's file.
     pub fn path(&self) -> &Path {
         &self.path
@@ -402,7 +416,7 @@ impl MapStore {
         let Some(handle) = self.writing.take() else {
             return Ok(());
         };
-        handle
+        self.written += handle
             .join()
             .unwrap_or_else(|_| Err(Error::format(&self.path, "map store: the commit failed")))?;
         // Committed: the store has those blocks now.
@@ -422,17 +436,17 @@ impl Drop for MapStore {
 }
 
 /// Runs `f` in one write transaction of `db` (the store at `path`) and
-/// commits it durably.
-fn write(
+/// commits it durably; what `f` returned.
+fn write<T>(
     db: &Database,
     path: &Path,
-    f: impl FnOnce(&redb::WriteTransaction) -> std::result::Result<(), redb::Error>,
-) -> Result<()> {
-    let run = || -> std::result::Result<(), redb::Error> {
+    f: impl FnOnce(&redb::WriteTransaction) -> std::result::Result<T, redb::Error>,
+) -> Result<T> {
+    let run = || -> std::result::Result<T, redb::Error> {
         let txn = db.begin_write()?;
-        f(&txn)?;
+        let value = f(&txn)?;
         txn.commit()?;
-        Ok(())
+        Ok(value)
     };
     run().map_err(|e| store_error(path, e))
 }
