@@ -173,6 +173,15 @@ fn a_walk_that_comes_back_continues_the_blocks_it_left_in_the_archive() {
         triangle_set(&pieces) == whole,
         "the archived map differs from the unbounded one"
     );
+    // A viewer who joins now is sent every part, archived ones included,
+    // and they hold the same triangles.
+    let parts = archived.follow_parts();
+    let meshes: Vec<Mesh> = archived.part_meshes(&parts).into_iter().flatten().collect();
+    assert_eq!(meshes.len(), parts.len(), "a part could not be meshed");
+    assert!(
+        triangle_set(&meshes) == whole,
+        "the viewer's parts differ from the unbounded map"
+    );
     // Without the archive the region walked back through starts empty:
     // its chunks hold other triangles.
     chunks.push(chunked.mesh().clone());

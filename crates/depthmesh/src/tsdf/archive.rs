@@ -19,7 +19,7 @@ use glam::{IVec3, Vec3};
 use rayon::prelude::*;
 
 /// Where a bounded map keeps the blocks it frees.
-pub trait BlockArchive: Send + std::fmt::Debug {
+pub trait BlockArchive: Send + Sync + std::fmt::Debug {
     /// The keys of every block archived.
     fn keys(&self) -> Result<Vec<IVec3>>;
     /// Keeps blocks leaving memory, each with the frame fusion last changed
@@ -122,23 +122,44 @@ impl SwapRegion {
         Ok(keys.len())
     }
 
+    /// Whether block `key` is archived and not in memory.
+    pub fn is_away(&self, key: IVec3) -> bool {
+        self.away.contains_key(&key)
+    }
+
+    /// Every block of the map: resident, then archived.
+    pub fn keys(&self, volume: &TsdfVolume) -> Vec<IVec3> {
+        let held = volume.blocks().iter().map(|b| b.key);
+        held.chain(self.away.keys().copied()).collect()
+    }
+
+    /// Copies of the blocks `keys` (each resident or archived).
+    pub fn fetch(&self, volume: &TsdfVolume, keys: &[IVec3]) -> Result<Vec<Block>> {
+        let (held, away): (Vec<IVec3>, Vec<IVec3>) =
+            keys.iter().partition(|k| volume.index().contains_key(k));
+        let mut blocks = self.archive.get(&away)?;
+        blocks.extend(held.iter().filter_map(|&k| volume.block(k).cloned()));
+        Ok(blocks)
+    }
+
     /// The whole map, resident and archived, meshed a slab at a time (see
     /// [`mesh_slabs`]).
     pub fn mesh_all(&self, volume: &TsdfVolume, f: impl FnMut(Mesh) -> Result<()>) -> Result<()> {
-        let keys = volume
-            .blocks()
-            .iter()
-            .map(|b| b.key)
-            .chain(self.away.keys().copied())
+        let fetch = |keys: &[IVec3]| self.fetch(volume, keys);
+        mesh_slabs(*volume.config(), self.keys(volume), fetch, f)
+    }
+
+    /// The triangles block `key` owns, resident or archived, meshed with
+    /// the blocks above it from wherever they are; `None` when they cannot
+    /// be read.
+    pub fn block_mesh(&self, volume: &TsdfVolume, key: IVec3) -> Option<Mesh> {
+        let keys: Vec<IVec3> = (0..8)
+            .map(|d| key + IVec3::new(d & 1, (d >> 1) & 1, (d >> 2) & 1))
+            .filter(|k| volume.index().contains_key(k) || self.is_away(*k))
             .collect();
-        let fetch = |keys: &[IVec3]| -> Result<Vec<Block>> {
-            let (held, away): (Vec<IVec3>, Vec<IVec3>) =
-                keys.iter().partition(|k| volume.index().contains_key(k));
-            let mut blocks = self.archive.get(&away)?;
-            blocks.extend(held.iter().filter_map(|&k| volume.block(k).cloned()));
-            Ok(blocks)
-        };
-        mesh_slabs(*volume.config(), keys, fetch, f)
+        let mut part = TsdfVolume::new(*volume.config()).ok()?;
+        part.restore(self.fetch(volume, &keys).ok()?, 0).ok()?;
+        Some(extract_blocks(&part, &[key], volume.config().min_weight))
     }
 }
 

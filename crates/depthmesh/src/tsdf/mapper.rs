@@ -4,7 +4,7 @@
 
 use super::archive::{BlockArchive, SwapRegion};
 use super::evict::ActiveRegion;
-use super::mesh::{changed_since, extract_sets, MeshCache};
+use super::mesh::{changed_since, extract_blocks, extract_sets, MeshCache};
 use super::raycast::RaycastImage;
 use super::{TsdfConfig, TsdfVolume};
 use crate::camera::{Intrinsics, Pose};
@@ -13,6 +13,7 @@ use crate::image::{DepthImage, Frame};
 use crate::map::{IntegrateReport, MapStats, Mapper};
 use crate::mesh::Mesh;
 use glam::IVec3;
+use rayon::prelude::*;
 use std::time::Instant;
 
 /// How a bounded map frees the blocks the camera left.
@@ -245,7 +246,11 @@ impl TsdfMapper {
     /// blocks of (those without surface have an empty mesh).
     pub fn follow_parts(&mut self) -> Vec<IVec3> {
         self.view_frame = Some(self.volume.frames());
-        let keys: Vec<IVec3> = self.volume.blocks().iter().map(|b| b.key).collect();
+        let keys: Vec<IVec3> = match &self.active {
+            // A viewer who joins late sees the archived blocks too.
+            Some(Bounded::Archive(a)) => a.keys(&self.volume),
+            _ => self.volume.blocks().iter().map(|b| b.key).collect(),
+        };
         self.parts_of(keys)
     }
 
@@ -271,10 +276,34 @@ impl TsdfMapper {
     }
 
     /// The triangles the blocks of each part own now, meshed from the
-    /// volume (what the assembled mesh holds for them); `None` for a part
-    /// none of whose blocks is held (evicted by bounded memory: its
-    /// triangles stay part of the map).
+    /// volume (what the assembled mesh holds for them), and with an
+    /// archive from the archived blocks too; `None` for a part none of
+    /// whose blocks is held (evicted by bounded memory without an archive:
+    /// its triangles stay part of the map) or whose archived blocks cannot
+    /// be read.
     pub fn part_meshes(&self, parts: &[IVec3]) -> Vec<Option<Mesh>> {
+        if let Some(Bounded::Archive(a)) = &self.active {
+            // A part is one block here. One that is archived, or whose
+            // blocks above are, is meshed from memory and archive together;
+            // one that cannot be read is kept as the viewer has it.
+            let archived = |&k: &IVec3| {
+                (0..8).any(|d| a.is_away(k + IVec3::new(d & 1, (d >> 1) & 1, (d >> 2) & 1)))
+            };
+            if parts.iter().any(archived) {
+                return parts
+                    .par_iter()
+                    .map(
+                        |&k| match (archived(&k), self.volume.index().contains_key(&k)) {
+                            (true, _) => a.block_mesh(&self.volume, k),
+                            (false, true) => {
+                                Some(extract_blocks(&self.volume, &[k], self.cache.min_weight()))
+                            }
+                            (false, false) => None,
+                        },
+                    )
+                    .collect();
+            }
+        }
         let n = self.part_blocks();
         let sets: Vec<Vec<IVec3>> = parts
             .iter()
