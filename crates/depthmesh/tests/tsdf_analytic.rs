@@ -232,3 +232,42 @@ fn ray_casting_sees_the_fused_sphere() {
         "mean {mean} m, 95th percentile {p95} m"
     );
 }
+
+#[test]
+fn ray_casting_leaves_no_holes_where_rays_run_towards_lower_coordinates() {
+    // A slab seen from around, then from high on the +x +y +z side: every ray
+    // runs towards lower coordinates. Its top and the truncation band above
+    // it lie in the lowest layer of blocks above y = 0, so rays cross missing
+    // blocks into the surface's blocks, where a ray whose next voxel was in
+    // the missing block used to skip the surface block whole.
+    let config = TsdfConfig::new(0.02);
+    let mut volume = TsdfVolume::new(config).unwrap();
+    let mut cache = MeshCache::new(1);
+    let hit = box_hit(Vec3::new(0.5, 0.03, 0.5));
+    scan(&hit, 16, &mut volume, &mut cache);
+    let k = Intrinsics::from_vertical_fov(160, 120, 60.0);
+    let pose = Pose::look_at(Vec3::new(0.9, 1.1, 0.8), Vec3::ZERO, Vec3::Y);
+    let mut image = depthmesh::tsdf::raycast::RaycastImage::default();
+    volume.raycast(&k, &pose, 0.1, 4.0, &mut image);
+    let (mut seen, mut holes) = (0, 0);
+    for v in 0..k.height {
+        for u in 0..k.width {
+            let dir = pose.transform_vector(k.back_project(u as f32, v as f32, 1.0));
+            // The top face away from its edges, which fusion blurs.
+            let top = hit(pose.translation, dir)
+                .map(|t| pose.translation + dir * t)
+                .filter(|p| p.y > 0.029 && p.x.abs().max(p.z.abs()) < 0.44);
+            if top.is_some() {
+                seen += 1;
+                if image.depth.data[(v * k.width + u) as usize] <= 0.0 {
+                    holes += 1;
+                }
+            }
+        }
+    }
+    assert!(seen > 2000, "{seen} pixels see the slab's top");
+    assert!(
+        holes == 0,
+        "{holes} of {seen} pixels see nothing where the slab's top is"
+    );
+}

@@ -15,6 +15,8 @@ pub struct Association {
     pub max_distance: f32,
     /// Smallest cosine of the angle between their normals.
     pub min_normal_cos: f32,
+    /// Give every normal orientation the same say (see [`bin_weights`]).
+    pub balance: bool,
 }
 
 /// The normal equations `A·x = -b` of one ICP iteration, summed over the
@@ -166,6 +168,11 @@ pub fn equations(
         return Equations::default();
     };
     let max_d2 = assoc.max_distance * assoc.max_distance;
+    let weights = if assoc.balance {
+        bin_weights(&frame.normals)
+    } else {
+        [1.0; 6]
+    };
     frame
         .points
         .par_chunks(w)
@@ -203,9 +210,10 @@ pub fn equations(
                     continue;
                 }
                 let r = p.cross(mn);
+                let s = weights[normal_bin(n)];
                 row.add(
-                    [r.x, r.y, r.z, mn.x, mn.y, mn.z],
-                    d.dot(mn),
+                    [r.x * s, r.y * s, r.z * s, mn.x * s, mn.y * s, mn.z * s],
+                    d.dot(mn) * s,
                     p.length_squared(),
                 );
             }
@@ -213,6 +221,42 @@ pub fn equations(
             eq
         })
         .reduce(Equations::default, Equations::merge)
+}
+
+/// The bin of a normal by its dominant axis and sign (six bins).
+#[inline(always)]
+fn normal_bin(n: Vec3) -> usize {
+    let a = n.abs();
+    let axis = if a.x >= a.y && a.x >= a.z {
+        0
+    } else if a.y >= a.z {
+        1
+    } else {
+        2
+    };
+    2 * axis + usize::from(n[axis] < 0.0)
+}
+
+/// Per normal bin, the square root of the weight that gives every
+/// orientation present the same total say (normal-space weighting,
+/// Rusinkiewicz and Levoy 2001): a floor filling most of the view no longer
+/// drowns the few points that pin the motion along it. At most 4× a point.
+fn bin_weights(normals: &[Vec3]) -> [f32; 6] {
+    let mut counts = [0usize; 6];
+    for &n in normals {
+        if n != Vec3::ZERO {
+            counts[normal_bin(n)] += 1;
+        }
+    }
+    let total: usize = counts.iter().sum();
+    let used = counts.iter().filter(|&&c| c > 0).count().max(1);
+    counts.map(|c| {
+        if c == 0 {
+            0.0
+        } else {
+            (total as f32 / (used * c) as f32).min(4.0).sqrt()
+        }
+    })
 }
 
 /// Applies a small motion (rotation ω as a scaled axis, translation t) on

@@ -596,6 +596,10 @@ impl Tracker {
         let assoc = Association {
             max_distance: self.config.max_distance * widen,
             min_normal_cos: self.config.max_normal_angle.to_radians().cos(),
+            // Without a measured motion the start can be far off, and a
+            // floor filling the view pulls the frame into the nearest
+            // minimum: every orientation gets the same say.
+            balance: !self.velocity_known,
         };
         let mut relative = predicted;
         let mut iterations = 0;

@@ -408,10 +408,16 @@ impl<'a> Rays<'a> {
             let p = origin + dir * t;
             match sampler.nearest(p) {
                 Err(true) => {
-                    // No block: skip to where the ray leaves it.
+                    // No block holds the nearest voxel: skip to where the
+                    // ray leaves the points whose nearest voxel is in that
+                    // block — the block's extent shifted down half a voxel,
+                    // not the block the point itself lies in, which may be
+                    // a block with surface (the point in its top half voxel).
                     previous = None;
-                    let key = floor(p / block_size).as_vec3();
-                    t = block_exit(origin, dir, key, block_size).max(t) + voxel_step * 0.5;
+                    let key = floor(p * sampler.scale + 0.5).div_euclid(IVec3::splat(BLOCK as i32));
+                    let shifted = origin + Vec3::splat(0.5 * self.voxel);
+                    t = block_exit(shifted, dir, key.as_vec3(), block_size).max(t)
+                        + voxel_step * 0.5;
                 }
                 Err(false) => {
                     previous = None;
