@@ -591,7 +591,7 @@ pub fn info(path: &Path) -> Result<Value> {
         "tracked": saved.session.poses.is_some(),
         "voxels": voxels,
         "file_bytes": size,
-        "file_bytes_per_voxel": size as f64 / voxels.max(1) as f64,
+        "file_bytes_per_voxel": (voxels > 0).then(|| size as f64 / voxels as f64),
         "identity": saved.identity,
     }))
 }
