@@ -11,8 +11,8 @@
 //! and freed (the extra side keeps a camera that jitters on a block's border
 //! from moving it to and fro every frame).
 
-use super::mesh::{extract_blocks, MeshCache};
-use super::{Block, KeyMap, TsdfConfig, TsdfVolume, BLOCK};
+use super::mesh::{extract_blocks, extract_sets, MeshCache};
+use super::{Block, KeyMap, TsdfConfig, TsdfVolume, ABOVE, BLOCK};
 use crate::error::Result;
 use crate::mesh::Mesh;
 use glam::{IVec3, Vec3};
@@ -149,34 +149,72 @@ impl SwapRegion {
         mesh_slabs(*volume.config(), self.keys(volume), fetch, f)
     }
 
-    /// The triangles block `key` owns, resident or archived, meshed with
-    /// the blocks above it from wherever they are; `None` when they cannot
-    /// be read.
-    pub fn block_mesh(&self, volume: &TsdfVolume, key: IVec3) -> Option<Mesh> {
-        let keys: Vec<IVec3> = (0..8)
-            .map(|d| key + IVec3::new(d & 1, (d >> 1) & 1, (d >> 2) & 1))
-            .filter(|k| volume.index().contains_key(k) || self.is_away(*k))
+    /// The triangles each block of `keys` owns, resident or archived,
+    /// meshed with the blocks above it from wherever they are, a slab at a
+    /// time (see [`for_slabs`]); `None` for a block not in the map, and for
+    /// all of them when the archive cannot be read.
+    pub fn block_meshes(&self, volume: &TsdfVolume, keys: &[IVec3]) -> Vec<Option<Mesh>> {
+        let known = |k: &IVec3| volume.index().contains_key(k) || self.is_away(*k);
+        let needed: Vec<IVec3> = keys
+            .iter()
+            .flat_map(|&k| ABOVE.map(|o| k + o))
+            .filter(known)
             .collect();
-        let mut part = TsdfVolume::new(*volume.config()).ok()?;
-        part.restore(self.fetch(volume, &keys).ok()?, 0).ok()?;
-        Some(extract_blocks(&part, &[key], volume.config().min_weight))
+        let slot: KeyMap<usize> = keys.iter().enumerate().map(|(i, &k)| (k, i)).collect();
+        let mut out = vec![None; keys.len()];
+        let min_weight = volume.config().min_weight;
+        let visited = for_slabs(
+            *volume.config(),
+            needed,
+            |keys| self.fetch(volume, keys),
+            |slab, keys| {
+                let wanted: Vec<Vec<IVec3>> = keys
+                    .iter()
+                    .filter(|k| slot.contains_key(k))
+                    .map(|&k| vec![k])
+                    .collect();
+                for (set, mesh) in wanted.iter().zip(extract_sets(slab, &wanted, min_weight)) {
+                    out[slot[&set[0]]] = Some(mesh);
+                }
+                Ok(())
+            },
+        );
+        match visited {
+            Ok(()) => out,
+            Err(_) => vec![None; keys.len()],
+        }
     }
 }
 
 /// Block layers (along x) meshed at a time by [`mesh_slabs`].
 const SLAB: i32 = 4;
 
-/// Meshes the map of blocks `keys`, which `fetch` hands out, a slab of
-/// [`SLAB`] block layers along x at a time (with the first layer of the
-/// next, which holds vertices of the slab's last layer), handing each slab's
-/// triangles to `f`: a map larger than memory is meshed holding two slabs.
-/// The pieces together hold exactly the triangles of a full extraction
-/// (vertices on a border between slabs come in both).
+/// Meshes the map of blocks `keys`, which `fetch` hands out, a slab at a
+/// time (see [`for_slabs`]), handing each slab's triangles to `f`: a map
+/// larger than memory is meshed holding two slabs. The pieces together
+/// hold exactly the triangles of a full extraction (vertices on a border
+/// between slabs come in both).
 pub fn mesh_slabs(
+    config: TsdfConfig,
+    keys: Vec<IVec3>,
+    fetch: impl FnMut(&[IVec3]) -> Result<Vec<Block>>,
+    mut f: impl FnMut(Mesh) -> Result<()>,
+) -> Result<()> {
+    for_slabs(config, keys, fetch, |volume, keys| {
+        f(extract_blocks(volume, keys, config.min_weight))
+    })
+}
+
+/// Visits the blocks `keys`, which `fetch` hands out, a slab of [`SLAB`]
+/// block layers along x at a time: `f` gets a volume holding the slab's
+/// blocks and the first layer of the next slab (which holds vertices of the
+/// slab's last layer), and the slab's keys, so what it meshes of them is
+/// what a full extraction holds.
+pub fn for_slabs(
     config: TsdfConfig,
     mut keys: Vec<IVec3>,
     mut fetch: impl FnMut(&[IVec3]) -> Result<Vec<Block>>,
-    mut f: impl FnMut(Mesh) -> Result<()>,
+    mut f: impl FnMut(&TsdfVolume, &[IVec3]) -> Result<()>,
 ) -> Result<()> {
     keys.sort_unstable_by_key(|k| (k.x, k.y, k.z));
     keys.dedup();
@@ -193,7 +231,7 @@ pub fn mesh_slabs(
             volume.restore(fetch(slabs[loaded])?, 0)?;
             loaded += 1;
         }
-        f(extract_blocks(&volume, keys, config.min_weight))?;
+        f(&volume, keys)?;
         volume.remove_blocks(keys);
     }
     Ok(())

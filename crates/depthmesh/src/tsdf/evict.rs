@@ -22,23 +22,11 @@
 //! fused with the new ones.
 
 use super::mesh::{extract_blocks, MeshCache};
-use super::{KeyMap, TsdfVolume};
+use super::{KeyMap, TsdfVolume, ABOVE};
 use crate::error::{Error, Result};
 use crate::mesh::Mesh;
 use glam::{IVec3, Vec3};
 use rayon::prelude::*;
-
-/// Offsets of a block and its seven neighbours above (+x, +y, +z combined).
-const ABOVE: [IVec3; 8] = [
-    IVec3::new(0, 0, 0),
-    IVec3::new(1, 0, 0),
-    IVec3::new(0, 1, 0),
-    IVec3::new(1, 1, 0),
-    IVec3::new(0, 0, 1),
-    IVec3::new(1, 0, 1),
-    IVec3::new(0, 1, 1),
-    IVec3::new(1, 1, 1),
-];
 
 /// The blocks kept in memory: those within `radius` of the camera, plus a
 /// shell of written blocks still needed by their neighbours below.

@@ -4,16 +4,15 @@
 
 use super::archive::{BlockArchive, SwapRegion};
 use super::evict::ActiveRegion;
-use super::mesh::{changed_since, extract_blocks, extract_sets, MeshCache};
+use super::mesh::{changed_since, extract_sets, MeshCache};
 use super::raycast::RaycastImage;
-use super::{TsdfConfig, TsdfVolume};
+use super::{TsdfConfig, TsdfVolume, ABOVE};
 use crate::camera::{Intrinsics, Pose};
 use crate::error::Result;
 use crate::image::{DepthImage, Frame};
 use crate::map::{IntegrateReport, MapStats, Mapper};
 use crate::mesh::Mesh;
 use glam::IVec3;
-use rayon::prelude::*;
 use std::time::Instant;
 
 /// How a bounded map frees the blocks the camera left.
@@ -283,25 +282,12 @@ impl TsdfMapper {
     /// be read.
     pub fn part_meshes(&self, parts: &[IVec3]) -> Vec<Option<Mesh>> {
         if let Some(Bounded::Archive(a)) = &self.active {
-            // A part is one block here. One that is archived, or whose
-            // blocks above are, is meshed from memory and archive together;
-            // one that cannot be read is kept as the viewer has it.
-            let archived = |&k: &IVec3| {
-                (0..8).any(|d| a.is_away(k + IVec3::new(d & 1, (d >> 1) & 1, (d >> 2) & 1)))
-            };
+            // A part is one block here. When some part is archived or reads
+            // an archived block above it, the parts are meshed from memory
+            // and archive together.
+            let archived = |&k: &IVec3| ABOVE.iter().any(|&o| a.is_away(k + o));
             if parts.iter().any(archived) {
-                return parts
-                    .par_iter()
-                    .map(
-                        |&k| match (archived(&k), self.volume.index().contains_key(&k)) {
-                            (true, _) => a.block_mesh(&self.volume, k),
-                            (false, true) => {
-                                Some(extract_blocks(&self.volume, &[k], self.cache.min_weight()))
-                            }
-                            (false, false) => None,
-                        },
-                    )
-                    .collect();
+                return a.block_meshes(&self.volume, parts);
             }
         }
         let n = self.part_blocks();

@@ -14,7 +14,7 @@
 //! extraction. Blocks without a sign change are skipped before gathering,
 //! and sign changes are found a bit row at a time.
 
-use super::{cases, voxel_index, KeyMap, TsdfVolume, BLOCK};
+use super::{cases, voxel_index, KeyMap, TsdfVolume, ABOVE, BLOCK};
 use crate::mesh::Mesh;
 use glam::{IVec3, Vec3};
 use rayon::prelude::*;
@@ -267,7 +267,7 @@ fn mesh_owners(
 fn owners_of(keys: &[IVec3], held: impl Fn(&IVec3) -> bool) -> Vec<IVec3> {
     let mut owners: Vec<IVec3> = keys
         .iter()
-        .flat_map(|&k| (0..8).map(move |d| k + IVec3::new(d & 1, (d >> 1) & 1, (d >> 2) & 1)))
+        .flat_map(|&k| ABOVE.map(|o| k + o))
         .filter(|k| held(k))
         .collect();
     owners.sort_unstable_by_key(|k| (k.x, k.y, k.z));

@@ -138,6 +138,18 @@ impl TsdfConfig {
     }
 }
 
+/// Offsets of a block and its seven neighbours above (+x, +y, +z combined).
+pub const ABOVE: [IVec3; 8] = [
+    IVec3::new(0, 0, 0),
+    IVec3::new(1, 0, 0),
+    IVec3::new(0, 1, 0),
+    IVec3::new(1, 1, 0),
+    IVec3::new(0, 0, 1),
+    IVec3::new(1, 0, 1),
+    IVec3::new(0, 1, 1),
+    IVec3::new(1, 1, 1),
+];
+
 /// The voxels of one block.
 #[derive(Clone, Debug)]
 pub struct Block {
