@@ -97,9 +97,7 @@ impl Checkpoints {
             self.store.compact()?
         } else {
             self.store.finish()?;
-            let size = std::fs::metadata(self.store.path())
-                .map_err(|e| Error::io(self.store.path(), e))?
-                .len();
+            let size = self.store.file_bytes()?;
             (size, size)
         };
         Ok(json!({

@@ -386,19 +386,14 @@ impl MapStore {
     /// size before and after.
     pub fn compact(&mut self) -> Result<(u64, u64)> {
         self.finish()?;
-        let size = || {
-            std::fs::metadata(&self.path)
-                .map(|m| m.len())
-                .map_err(|e| Error::io(&self.path, e))
-        };
-        let before = size()?;
+        let before = self.file_bytes()?;
         if let Some(db) = Arc::get_mut(&mut self.db) {
             while db
                 .compact()
                 .map_err(|e| Error::format(&self.path, format!("map store: {e}")))?
             {}
         }
-        Ok((before, size()?))
+        Ok((before, self.file_bytes()?))
     }
 
     /// Compressed bytes of the map the commits finished so far wrote.
@@ -406,9 +401,11 @@ impl MapStore {
         self.written
     }
 
-    /// The store's file.
-    pub fn path(&self) -> &Path {
-        &self.path
+    /// The size of the store's file.
+    pub fn file_bytes(&self) -> Result<u64> {
+        std::fs::metadata(&self.path)
+            .map(|m| m.len())
+            .map_err(|e| Error::io(&self.path, e))
     }
 
     /// Waits for the last checkpoint's commit; its error, if it failed.
