@@ -39,9 +39,8 @@ use crate::session::{Backend, MapConfig, PoseState, Resumed, SavedMap, Session, 
 use crate::track::TrackerState;
 use crate::tsdf::archive::BlockArchive;
 use crate::tsdf::mapper::TsdfMapper;
-use crate::tsdf::KeyMap;
 use rayon::prelude::*;
-use redb::{Database, ReadableDatabase, ReadableTable, TableDefinition};
+use redb::{Database, ReadableDatabase, ReadableTable, ReadableTableMetadata, TableDefinition};
 use serde_json::{json, Value};
 use std::path::{Path, PathBuf};
 use std::sync::{Arc, Mutex};
@@ -85,6 +84,8 @@ pub struct Saved {
     pub session: Resumed,
     /// Blocks in the store (TSDF maps).
     pub stored_blocks: usize,
+    /// With bounded memory, how many blocks were in memory.
+    pub resident_blocks: Option<usize>,
     /// The hashes of the chunks of a MABDI map the store holds.
     hashes: arrays::Hashes,
 }
@@ -201,6 +202,13 @@ impl MapStore {
     /// Opens the store at `path` and reads what it holds. A file that is not
     /// a store, a damaged one or one of another format is an error naming it.
     pub fn open(path: &Path) -> Result<(Self, Saved)> {
+        Self::open_with(path, true)
+    }
+
+    /// [`MapStore::open`]; a TSDF map's blocks are read only when `blocks`
+    /// (reading what a store holds, or meshing it a slab at a time, needs
+    /// none in memory).
+    fn open_with(path: &Path, blocks: bool) -> Result<(Self, Saved)> {
         if !path.is_file() {
             return Err(Error::format(path, "no store here"));
         }
@@ -214,7 +222,7 @@ impl MapStore {
                     "map store: damaged (a page fails its checksum)",
                 ));
             }
-            let saved = read_saved(&db, path)?;
+            let saved = read_saved(&db, path, blocks)?;
             Ok((db, saved))
         })?;
         let store = MapStore {
@@ -491,7 +499,7 @@ pub fn is_store(path: &Path) -> bool {
 /// a slab at a time ([`crate::tsdf::archive::mesh_slabs`]), so only the
 /// mesh, not the map, must fit in memory.
 pub fn mesh(path: &Path) -> Result<crate::mesh::Mesh> {
-    let (store, saved) = MapStore::open(path)?;
+    let (store, saved) = MapStore::open_with(path, false)?;
     let id = &saved.identity;
     let bad = |k: &str| Error::format(path, format!("identity: no {k}"));
     let number = |k: &str| id[k].as_f64().ok_or_else(|| bad(k));
@@ -560,7 +568,7 @@ pub fn mesh(path: &Path) -> Result<crate::mesh::Mesh> {
 /// What a store holds, for `depthmesh info`: its identity, last checkpoint,
 /// blocks, records and file size.
 pub fn info(path: &Path) -> Result<Value> {
-    let (_, saved) = MapStore::open(path)?;
+    let (_, saved) = MapStore::open_with(path, false)?;
     let size = std::fs::metadata(path)
         .map_err(|e| Error::io(path, e))?
         .len();
@@ -573,10 +581,7 @@ pub fn info(path: &Path) -> Result<Value> {
         "records": saved.session.records.len(),
         "dataset_position": saved.position,
         "blocks": saved.stored_blocks,
-        "resident_blocks": match &saved.session.map {
-            SavedMap::Tsdf { blocks, .. } => Some(blocks.len()),
-            _ => None,
-        },
+        "resident_blocks": saved.resident_blocks,
         "cells": match &saved.session.map {
             SavedMap::Planes { cells, .. } => Some(cells.len()),
             _ => None,
@@ -594,7 +599,7 @@ pub fn info(path: &Path) -> Result<Value> {
 }
 
 /// Reads a whole store.
-fn read_saved(db: &Database, path: &Path) -> Result<Saved> {
+fn read_saved(db: &Database, path: &Path, decode: bool) -> Result<Saved> {
     let bad = |message: String| Error::format(path, message);
     let read = || -> std::result::Result<_, redb::Error> {
         let txn = db.begin_read()?;
@@ -607,11 +612,7 @@ fn read_saved(db: &Database, path: &Path) -> Result<Saved> {
         let resident = meta.get("resident")?.map(|v| v.value().to_vec());
         let mabdi = meta.get("mabdi")?.map(|v| v.value().to_vec());
         let planes = meta.get("planes")?.map(|v| v.value().to_vec());
-        let mut blocks = Vec::new();
-        for entry in txn.open_table(BLOCKS)?.iter()? {
-            let (k, v) = entry?;
-            blocks.push((k.value(), v.value().to_vec()));
-        }
+        let stored_blocks = txn.open_table(BLOCKS)?.len()? as usize;
         let mut records = Vec::new();
         for entry in txn.open_table(RECORDS)?.iter()? {
             let (_, v) = entry?;
@@ -621,11 +622,11 @@ fn read_saved(db: &Database, path: &Path) -> Result<Saved> {
             [
                 format, identity, checkpoint, tracking, last_view, resident, mabdi, planes,
             ],
-            blocks,
+            stored_blocks,
             records,
         ))
     };
-    let (meta, blocks, records) = read().map_err(|e| store_error(path, e))?;
+    let (meta, stored_blocks, records) = read().map_err(|e| store_error(path, e))?;
     let [format, identity, checkpoint, tracking, last_view, resident, mabdi, planes] = meta;
     let format = format
         .and_then(|f| <[u8; 8]>::try_from(f.as_slice()).ok())
@@ -665,13 +666,27 @@ fn read_saved(db: &Database, path: &Path) -> Result<Saved> {
         None => None,
     };
     let hashes = arrays::Hashes::default();
-    let stored_blocks = blocks.len();
+    // With bounded memory, the blocks that were in memory.
+    let resident: Option<Vec<glam::IVec3>> = resident
+        .map(|r| resident_keys(&r).map_err(|e| bad(format!("resident blocks: {e}"))))
+        .transpose()?;
     let map = match identity["map"].as_str() {
         Some("tsdf") => {
             let last_view = last_view
                 .map(|v| view_from(&v).map_err(|e| bad(format!("last view: {e}"))))
                 .transpose()?;
-            tsdf_saved(&identity, blocks, resident, frames, last_view).map_err(bad)?
+            let blocks = if decode {
+                let bytes =
+                    block_bytes(db, resident.as_deref()).map_err(|e| store_error(path, e))?;
+                decode_blocks(&identity, bytes).map_err(bad)?
+            } else {
+                Vec::new()
+            };
+            SavedMap::Tsdf {
+                blocks,
+                frames,
+                last_view,
+            }
         }
         // The map parts of the others are read in a second transaction
         // (nothing writes between: the store is held open by this process).
@@ -718,41 +733,54 @@ fn read_saved(db: &Database, path: &Path) -> Result<Saved> {
             poses,
         },
         stored_blocks,
+        resident_blocks: resident.map(|r| r.len()),
         hashes,
     })
 }
 
-/// A TSDF map as saved: the blocks (with bounded memory, those that were
-/// in memory: `resident`), decoded.
-fn tsdf_saved(
+/// The stored bytes of the blocks `keys`, or of every block.
+fn block_bytes(
+    db: &Database,
+    keys: Option<&[glam::IVec3]>,
+) -> std::result::Result<Vec<StoredBlock>, redb::Error> {
+    let txn = db.begin_read()?;
+    let table = txn.open_table(BLOCKS)?;
+    let mut blocks = Vec::new();
+    match keys {
+        Some(keys) => {
+            for k in keys {
+                let key = (k.x, k.y, k.z);
+                if let Some(v) = table.get(key)? {
+                    blocks.push((key, v.value().to_vec()));
+                }
+            }
+        }
+        None => {
+            for entry in table.iter()? {
+                let (k, v) = entry?;
+                blocks.push((k.value(), v.value().to_vec()));
+            }
+        }
+    }
+    Ok(blocks)
+}
+
+/// A TSDF block's coordinates and stored bytes.
+type StoredBlock = ((i32, i32, i32), Vec<u8>);
+
+/// TSDF blocks from their stored bytes.
+fn decode_blocks(
     identity: &Value,
-    blocks: Vec<((i32, i32, i32), Vec<u8>)>,
-    resident: Option<Vec<u8>>,
-    frames: u32,
-    last_view: Option<(Pose, DepthImage)>,
-) -> std::result::Result<SavedMap, String> {
+    bytes: Vec<StoredBlock>,
+) -> std::result::Result<Vec<crate::tsdf::Block>, String> {
     let color = colour(identity);
-    // With bounded memory, only the blocks that were in memory.
-    let resident: Option<KeyMap<()>> = resident
-        .map(|r| resident_keys(&r).map_err(|e| format!("resident blocks: {e}")))
-        .transpose()?;
-    let blocks = blocks
-        .into_iter()
-        .filter(|((x, y, z), _)| {
-            resident
-                .as_ref()
-                .is_none_or(|r| r.contains_key(&glam::IVec3::new(*x, *y, *z)))
-        })
+    bytes
+        .into_par_iter()
         .map(|((x, y, z), bytes)| {
             block_codec::decode(glam::IVec3::new(x, y, z), &bytes, color)
                 .map_err(|e| format!("block ({x}, {y}, {z}): {e}"))
         })
-        .collect::<std::result::Result<Vec<_>, String>>()?;
-    Ok(SavedMap::Tsdf {
-        blocks,
-        frames,
-        last_view,
-    })
+        .collect()
 }
 
 /// Whether a store's blocks hold colours, by its identity.
@@ -761,7 +789,7 @@ fn colour(identity: &Value) -> bool {
 }
 
 /// The keys of a checkpoint's `resident` entry.
-fn resident_keys(bytes: &[u8]) -> std::result::Result<KeyMap<()>, String> {
+fn resident_keys(bytes: &[u8]) -> std::result::Result<Vec<glam::IVec3>, String> {
     let raw = lz4_flex::decompress_size_prepended(bytes).map_err(|e| e.to_string())?;
     if raw.len() % 12 != 0 {
         return Err(format!("{} bytes, not whole keys", raw.len()));
@@ -769,7 +797,7 @@ fn resident_keys(bytes: &[u8]) -> std::result::Result<KeyMap<()>, String> {
     let i = |b: &[u8]| i32::from_le_bytes([b[0], b[1], b[2], b[3]]);
     Ok(raw
         .chunks_exact(12)
-        .map(|k| (glam::IVec3::new(i(&k[..4]), i(&k[4..8]), i(&k[8..])), ()))
+        .map(|k| glam::IVec3::new(i(&k[..4]), i(&k[4..8]), i(&k[8..])))
         .collect())
 }
 
