@@ -14,6 +14,7 @@ pub mod evict;
 pub mod mapper;
 pub mod mesh;
 pub mod raycast;
+pub mod regions;
 
 use crate::camera::{Intrinsics, Pose};
 use crate::error::{Error, Result};
@@ -298,6 +299,21 @@ impl TsdfVolume {
         intrinsics: &Intrinsics,
         pose: &Pose,
     ) -> Result<()> {
+        self.integrate_where(depth, color, intrinsics, pose, |_| true)
+    }
+
+    /// [`TsdfVolume::integrate`] into only the blocks whose key `keep`
+    /// accepts: a block's fusion depends on nothing but the frame and the
+    /// block, so volumes that split the blocks between them (the shards of
+    /// a cluster) hold exactly what one volume fusing everything holds.
+    pub fn integrate_where(
+        &mut self,
+        depth: &DepthImage,
+        color: Option<&ColorImage>,
+        intrinsics: &Intrinsics,
+        pose: &Pose,
+        keep: impl Fn(IVec3) -> bool,
+    ) -> Result<()> {
         let color = match (self.config.color, color) {
             (true, Some(c)) if c.width != depth.width || c.height != depth.height => {
                 return Err(Error::parameter(
@@ -321,7 +337,7 @@ impl TsdfVolume {
             ));
         }
         self.frames += 1;
-        self.allocate(depth, intrinsics, pose);
+        self.allocate(depth, intrinsics, pose, keep);
         let frame = self.frames;
         let touched: Vec<bool> = {
             let mut t = vec![false; self.blocks.len()];
@@ -359,7 +375,13 @@ impl TsdfVolume {
 
     /// Allocates the blocks within the truncation band of every measured
     /// pixel, and leaves their keys in `self.keys`.
-    fn allocate(&mut self, depth: &DepthImage, k: &Intrinsics, pose: &Pose) {
+    fn allocate(
+        &mut self,
+        depth: &DepthImage,
+        k: &Intrinsics,
+        pose: &Pose,
+        keep: impl Fn(IVec3) -> bool,
+    ) {
         let c = self.config;
         let block_size = c.voxel * BLOCK as f32;
         // Blocks are 8 voxels wide, so sampling every few pixels and every
@@ -411,6 +433,7 @@ impl TsdfVolume {
         }
         self.keys.par_sort_unstable_by_key(|k| (k.x, k.y, k.z));
         self.keys.dedup();
+        self.keys.retain(|&k| keep(k));
         if let Some(radius) = self.reach {
             let camera = pose.translation;
             let keys = std::mem::take(&mut self.keys);
