@@ -2,6 +2,7 @@
 
 mod bench;
 mod bounded;
+mod cluster;
 mod dataset_args;
 mod demo;
 mod draw;
@@ -69,6 +70,10 @@ enum Command {
     Simplify(simplify::SimplifyArgs),
     /// Write a mesh as game-engine assets: chunked GLB, OBJ or PLY.
     Export(export::ExportArgs),
+    /// Map a site with several machines over NATS JetStream: workers,
+    /// the site's map, its status, a replay of its stream.
+    #[command(subcommand)]
+    Cluster(cluster::ClusterCommand),
 }
 
 fn main() -> ExitCode {
@@ -86,6 +91,7 @@ fn main() -> ExitCode {
         Command::Info(args) => info::run(&args),
         Command::Simplify(args) => simplify::run(&args, cli.quiet),
         Command::Export(args) => export::run(&args, cli.quiet),
+        Command::Cluster(command) => cluster::run(&command, cli.quiet),
     };
     match result {
         Ok(()) => ExitCode::SUCCESS,

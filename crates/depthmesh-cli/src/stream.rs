@@ -35,7 +35,18 @@ pub struct StreamArgs {
     pub server: String,
     /// The server's token.
     #[arg(long, env = "DEPTHMESH_TOKEN", hide_env_values = true)]
-    pub token: String,
+    pub token: Option<String>,
+    /// Publish to a site's stream on this NATS server (nats://HOST:PORT,
+    /// JetStream enabled) instead of streaming to a `serve`: the site's
+    /// `cluster worker`s map it.
+    #[arg(long, requires_all = ["site", "sensor"])]
+    pub nats: Option<String>,
+    /// The site to publish to (--nats).
+    #[arg(long, requires = "nats")]
+    pub site: Option<String>,
+    /// This sensor's name on the site (--nats).
+    #[arg(long, requires = "nats")]
+    pub sensor: Option<String>,
     /// The session's name on the server (letters, digits, '-', '_'; default: generated).
     #[arg(long)]
     pub session: Option<String>,
@@ -81,9 +92,9 @@ pub struct StreamArgs {
     #[arg(long, default_value_t = 60)]
     pub timeout: u64,
     /// Output folder (mesh.ply, summary.json, status/): new, empty, or an
-    /// earlier run's with --force.
-    #[arg(long)]
-    pub out: PathBuf,
+    /// earlier run's with --force (not with --nats, which prints its summary).
+    #[arg(long, required_unless_present = "nats", conflicts_with = "nats")]
+    pub out: Option<PathBuf>,
     /// Replace the earlier run in --out.
     #[arg(long)]
     pub force: bool,
@@ -102,10 +113,16 @@ pub fn run(args: &StreamArgs, quiet: bool) -> Result<()> {
         bail!("--realtime sends at the sensor's rate: give --rate FPS");
     }
     let source = open_source(args)?;
-    let out = OutDir::prepare(&args.out, args.force)?;
+    if let Some(nats) = &args.nats {
+        return publish(args, nats, source, rate, quiet);
+    }
+    let (Some(out_path), Some(token)) = (&args.out, &args.token) else {
+        bail!("streaming to a server needs --out and --token (or DEPTHMESH_TOKEN)");
+    };
+    let out = OutDir::prepare(out_path, args.force)?;
     let options = StreamOptions {
         url: args.server.clone(),
-        token: args.token.clone(),
+        token: token.clone(),
         session: args.session.clone(),
         codec: args.codec,
         rate,
@@ -136,11 +153,11 @@ pub fn run(args: &StreamArgs, quiet: bool) -> Result<()> {
         ))
         .map_err(anyhow::Error::msg)?;
     bar.finish_and_clear();
-    write_atomic(&args.out.join("mesh.ply"), |w| {
+    write_atomic(&out_path.join("mesh.ply"), |w| {
         w.write_all(&result.mesh_ply)
     })?;
     if args.save_status {
-        let dir = args.out.join("status");
+        let dir = out_path.join("status");
         std::fs::create_dir_all(&dir)
             .with_context(|| format!("cannot create {}", dir.display()))?;
         for (frame, jpeg) in &result.status {
@@ -150,16 +167,51 @@ pub fn run(args: &StreamArgs, quiet: bool) -> Result<()> {
         }
     }
     let text = serde_json::to_string_pretty(&result.summary)?;
-    write_atomic(&args.out.join("summary.json"), |w| writeln!(w, "{text}"))?;
+    write_atomic(&out_path.join("summary.json"), |w| writeln!(w, "{text}"))?;
     out.keep();
     if !quiet {
         let s = &result.summary;
         eprintln!(
             "{} frames sent, {} mapped, {} dropped, {} lost; {} triangles; latency p50 {} ms; wrote {}",
             s["frames_sent"], s["frames_mapped"], s["frames_dropped"], s["frames_lost"],
-            s["triangles"], s["latency_ms_p50"], args.out.display()
+            s["triangles"], s["latency_ms_p50"], out_path.display()
         );
     }
+    Ok(())
+}
+
+/// Publishes the frames to a site's stream (`--nats`) and prints what was stored.
+fn publish(
+    args: &StreamArgs,
+    nats: &str,
+    mut source: Box<dyn FrameSource>,
+    rate: Option<f64>,
+    quiet: bool,
+) -> Result<()> {
+    if args.realtime || args.track || args.resume || args.status_every > 0 || args.save_status {
+        bail!("--nats publishes every frame with its pose, if known: --realtime, --track, --resume, --status-every and --save-status are for a server");
+    }
+    let (Some(site), Some(sensor)) = (&args.site, &args.sensor) else {
+        bail!("--nats needs --site and --sensor");
+    };
+    let options = depthmesh_cluster::publish::PublishOptions {
+        sensor: sensor.clone(),
+        codec: args.codec,
+        rate,
+    };
+    let bar = progress::bar(source.len() as u64, "publish", quiet);
+    let runtime = tokio::runtime::Runtime::new().context("cannot start the client's runtime")?;
+    let published = runtime
+        .block_on(async {
+            let site = depthmesh_cluster::Site::connect(nats, site, None).await?;
+            depthmesh_cluster::publish::publish(&site, source.as_mut(), &options, |p| {
+                bar.set_position(p.frames + p.duplicates);
+            })
+            .await
+        })
+        .with_context(|| format!("site {site} on {nats}"))?;
+    bar.finish_and_clear();
+    println!("{}", serde_json::to_string_pretty(&published)?);
     Ok(())
 }
 

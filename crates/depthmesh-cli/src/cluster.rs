@@ -1,0 +1,239 @@
+//! `depthmesh cluster`: fusion workers that share a site's map over NATS
+//! JetStream, and what a person asks of a site (its map, its status, a
+//! single-process replay of its stream).
+
+use crate::progress;
+use anyhow::{bail, Context, Result};
+use clap::{Args, Subcommand};
+use depthmesh::mesh::io::write_mesh;
+use depthmesh::tsdf::regions::Regions;
+use depthmesh_cluster::worker::WorkerOptions;
+use depthmesh_cluster::{Site, SiteConfig};
+use std::path::PathBuf;
+use std::sync::atomic::{AtomicBool, Ordering};
+use std::sync::Arc;
+use std::time::Duration;
+
+/// `depthmesh cluster …`.
+#[derive(Subcommand, Debug)]
+pub enum ClusterCommand {
+    /// Fuse a share of a site's map: claim shards, fuse the stream's frames
+    /// into them, checkpoint them, take over those of dead workers.
+    Worker(WorkerArgs),
+    /// Assemble the site's map from the shards' checkpoints.
+    Fetch(FetchArgs),
+    /// Workers, shards, lag per sensor and frames per second (JSON).
+    Status(SiteArgs),
+    /// Fuse the site's whole stream in this process, in the stream's order.
+    Replay(ReplayArgs),
+}
+
+/// Which site, on which bus.
+#[derive(Args, Debug, Clone)]
+pub struct SiteArgs {
+    /// The NATS server, nats://HOST:PORT (JetStream enabled).
+    #[arg(long, default_value = "nats://127.0.0.1:4222")]
+    pub nats: String,
+    /// The site's name (letters, digits, '-', '_').
+    #[arg(long)]
+    pub site: String,
+    /// Seconds a shard's lease lives unrenewed, for the whole site (a new
+    /// site's is 10): how long a dead worker's shards wait for a new owner.
+    #[arg(long)]
+    pub lease_seconds: Option<f64>,
+}
+
+impl SiteArgs {
+    async fn connect(&self) -> Result<Site> {
+        let lease = match self.lease_seconds {
+            Some(s) if s.is_finite() && s > 0.0 => Some(Duration::from_secs_f64(s)),
+            Some(s) => bail!("--lease-seconds must be a positive number, got {s}"),
+            None => None,
+        };
+        Site::connect(&self.nats, &self.site, lease)
+            .await
+            .with_context(|| format!("site {} on {}", self.site, self.nats))
+    }
+}
+
+/// The map's settings, which every worker of a site must share.
+#[derive(Args, Debug, Clone)]
+pub struct SiteMapArgs {
+    /// Voxel size in metres.
+    #[arg(long, default_value_t = 0.01, allow_negative_numbers = true)]
+    pub voxel: f32,
+    /// Truncation distance in metres (default 4 voxels).
+    #[arg(long, allow_negative_numbers = true)]
+    pub trunc: Option<f32>,
+    /// Mesh only voxels fused from at least this many frames.
+    #[arg(long, default_value_t = 1)]
+    pub min_weight: u16,
+    /// Nearer depths are dropped (metres).
+    #[arg(long, default_value_t = 0.1, allow_negative_numbers = true)]
+    pub depth_min: f32,
+    /// Farther depths are dropped (metres).
+    #[arg(long, default_value_t = 4.0, allow_negative_numbers = true)]
+    pub depth_max: f32,
+    /// Blocks (8 voxels) along each side of a region.
+    #[arg(long, default_value_t = Regions::new().region_blocks)]
+    pub region_blocks: i32,
+    /// Shards the regions are dealt into (the most workers that can share the site).
+    #[arg(long, default_value_t = Regions::new().shards)]
+    pub shards: u32,
+}
+
+impl SiteMapArgs {
+    fn config(&self) -> SiteConfig {
+        let tsdf = depthmesh::tsdf::TsdfConfig::new(self.voxel);
+        SiteConfig {
+            voxel: self.voxel,
+            truncation: self.trunc.unwrap_or(tsdf.truncation),
+            max_weight: tsdf.max_weight,
+            min_weight: self.min_weight,
+            depth_min: self.depth_min,
+            depth_max: self.depth_max,
+            regions: Regions {
+                region_blocks: self.region_blocks,
+                shards: self.shards,
+            },
+        }
+    }
+}
+
+/// Flags of `cluster worker`.
+#[derive(Args, Debug, Clone)]
+pub struct WorkerArgs {
+    #[command(flatten)]
+    pub site: SiteArgs,
+    #[command(flatten)]
+    pub map: SiteMapArgs,
+    /// This worker's name on the site (default: host, process and time).
+    #[arg(long)]
+    pub name: Option<String>,
+    /// Checkpoint a shard after this many frames fused into it (and
+    /// whenever the worker has caught up with the stream).
+    #[arg(long, default_value_t = 30)]
+    pub checkpoint_every: u64,
+}
+
+/// Flags of `cluster fetch`.
+#[derive(Args, Debug, Clone)]
+pub struct FetchArgs {
+    #[command(flatten)]
+    pub site: SiteArgs,
+    /// The mesh file to write (.ply, .glb or .obj).
+    #[arg(short = 'o', long = "output")]
+    pub output: PathBuf,
+    /// First wait until every frame on the stream is fused and checkpointed.
+    #[arg(long)]
+    pub wait: bool,
+    /// Give up waiting after this many seconds.
+    #[arg(long, default_value_t = 600.0)]
+    pub timeout: f64,
+}
+
+/// Flags of `cluster replay`.
+#[derive(Args, Debug, Clone)]
+pub struct ReplayArgs {
+    #[command(flatten)]
+    pub site: SiteArgs,
+    #[command(flatten)]
+    pub map: SiteMapArgs,
+    /// The mesh file to write (.ply, .glb or .obj).
+    #[arg(short = 'o', long = "output")]
+    pub output: PathBuf,
+}
+
+/// Runs `depthmesh cluster …`.
+pub fn run(command: &ClusterCommand, quiet: bool) -> Result<()> {
+    let runtime = tokio::runtime::Runtime::new().context("cannot start the cluster's runtime")?;
+    runtime.block_on(async {
+        match command {
+            ClusterCommand::Worker(args) => worker(args).await,
+            ClusterCommand::Fetch(args) => fetch(args).await,
+            ClusterCommand::Status(args) => {
+                let site = args.connect().await?;
+                let status = depthmesh_cluster::status::status(&site).await?;
+                println!("{}", serde_json::to_string_pretty(&status)?);
+                Ok(())
+            }
+            ClusterCommand::Replay(args) => replay(args, quiet).await,
+        }
+    })
+}
+
+async fn worker(args: &WorkerArgs) -> Result<()> {
+    if args.checkpoint_every == 0 {
+        bail!("--checkpoint-every must be at least 1");
+    }
+    let site = args.site.connect().await?;
+    site.settle_config(&args.map.config()).await?;
+    let id = args.name.clone().unwrap_or_else(default_name);
+    if !depthmesh_server::protocol::valid_session_name(&id) {
+        bail!("--name {id:?}: 1 to 64 letters, digits, '-' or '_'");
+    }
+    let stop = Arc::new(AtomicBool::new(false));
+    let flag = stop.clone();
+    tokio::spawn(async move {
+        let mut term =
+            tokio::signal::unix::signal(tokio::signal::unix::SignalKind::terminate()).ok();
+        tokio::select! {
+            _ = tokio::signal::ctrl_c() => {}
+            _ = async { match term.as_mut() { Some(t) => { t.recv().await; } None => std::future::pending().await } } => {}
+        }
+        flag.store(true, Ordering::Relaxed);
+    });
+    let options = WorkerOptions {
+        id,
+        checkpoint_every: args.checkpoint_every,
+    };
+    depthmesh_cluster::worker::run(&site, &options, &stop).await?;
+    Ok(())
+}
+
+/// A worker name unique enough on one site: host, process id and start time.
+fn default_name() -> String {
+    let host = std::fs::read_to_string("/proc/sys/kernel/hostname")
+        .map(|h| h.trim().to_string())
+        .unwrap_or_default();
+    let host: String = host
+        .chars()
+        .filter(|c| c.is_ascii_alphanumeric() || *c == '-')
+        .take(32)
+        .collect();
+    let nanos = std::time::SystemTime::now()
+        .duration_since(std::time::UNIX_EPOCH)
+        .map_or(0, |d| d.subsec_nanos());
+    format!(
+        "{}-{}-{nanos:x}",
+        if host.is_empty() { "worker" } else { &host },
+        std::process::id()
+    )
+}
+
+async fn fetch(args: &FetchArgs) -> Result<()> {
+    if !(args.timeout.is_finite() && args.timeout > 0.0) {
+        bail!("--timeout must be a positive number of seconds");
+    }
+    let site = args.site.connect().await?;
+    let wait = args.wait.then(|| Duration::from_secs_f64(args.timeout));
+    let (mesh, report) = depthmesh_cluster::fetch::fetch(&site, wait).await?;
+    write_mesh(&args.output, &mesh)?;
+    println!("{}", serde_json::to_string_pretty(&report)?);
+    Ok(())
+}
+
+async fn replay(args: &ReplayArgs, quiet: bool) -> Result<()> {
+    let site = args.site.connect().await?;
+    site.settle_config(&args.map.config()).await?;
+    let bar = progress::bar(0, "replay", quiet);
+    let (mesh, report) = depthmesh_cluster::fetch::replay(&site, |seq, last| {
+        bar.set_length(last);
+        bar.set_position(seq);
+    })
+    .await?;
+    bar.finish_and_clear();
+    write_mesh(&args.output, &mesh)?;
+    println!("{}", serde_json::to_string_pretty(&report)?);
+    Ok(())
+}

@@ -1,0 +1,91 @@
+//! Frames as they travel on a site's stream: the mapping service's frame
+//! message (index, timestamp, pose, depth in the sensor's units through a
+//! lossless codec), read back into metres for fusion.
+
+use crate::error::{ClusterError, Result};
+use crate::site::Site;
+use depthmesh::codec::{Codec, Decoder, RawDepth};
+use depthmesh::{DepthImage, Intrinsics, Pose};
+use depthmesh_server::protocol::FrameMessage;
+use std::collections::HashMap;
+
+/// Reads frame messages into depth images, reusing its buffers, and keeps
+/// the sensors' cameras it has looked up.
+#[derive(Default)]
+pub struct FrameReader {
+    decoders: Vec<(Codec, Decoder)>,
+    raw: RawDepth,
+    depth: DepthImage,
+    cameras: HashMap<String, Intrinsics>,
+}
+
+/// A frame read from the stream.
+pub struct ReadFrame<'a> {
+    /// The sensor's frame number.
+    pub index: u64,
+    /// Where it was taken from.
+    pub pose: Pose,
+    /// Its depth in metres, outside the site's range set to 0.
+    pub depth: &'a DepthImage,
+    /// The sensor's camera.
+    pub camera: Intrinsics,
+}
+
+impl FrameReader {
+    /// The camera of `sensor`, looked up on the site the first time.
+    pub async fn camera(&mut self, site: &Site, sensor: &str) -> Result<Intrinsics> {
+        if let Some(k) = self.cameras.get(sensor) {
+            return Ok(*k);
+        }
+        let k = site.sensor(sensor).await?.ok_or_else(|| {
+            ClusterError::site(&site.name, format!("sensor {sensor} published no camera"))
+        })?;
+        self.cameras.insert(sensor.to_string(), k);
+        Ok(k)
+    }
+
+    /// Reads a posed frame message taken with `camera`; depth outside
+    /// `range` (metres) is dropped as the dataset readers drop it. A
+    /// message that is not one is an error saying why (the caller skips it).
+    pub fn read(
+        &mut self,
+        payload: &[u8],
+        camera: Intrinsics,
+        range: (f32, f32),
+    ) -> Result<ReadFrame<'_>, String> {
+        let msg = FrameMessage::decode(payload).map_err(|e| e.to_string())?;
+        let pose = msg
+            .pose
+            .ok_or("a frame on a posed subject without a pose")?;
+        let pixels = u64::from(camera.width) * u64::from(camera.height);
+        let decoder = match self.decoders.iter_mut().position(|(c, _)| *c == msg.codec) {
+            Some(i) => &mut self.decoders[i].1,
+            None => {
+                self.decoders
+                    .push((msg.codec, Decoder::new(msg.codec, pixels)));
+                &mut self.decoders.last_mut().expect("just pushed").1
+            }
+        };
+        decoder
+            .decode_into(&msg.payload, &mut self.raw)
+            .map_err(|e| format!("frame {}: {e}", msg.index))?;
+        if (self.raw.width(), self.raw.height()) != (camera.width, camera.height) {
+            return Err(format!(
+                "frame {}: {}×{} but the sensor's camera is {}×{}",
+                msg.index,
+                self.raw.width(),
+                self.raw.height(),
+                camera.width,
+                camera.height
+            ));
+        }
+        self.raw.to_metres(&mut self.depth);
+        self.depth.clamp_range(range.0, range.1);
+        Ok(ReadFrame {
+            index: msg.index,
+            pose,
+            depth: &self.depth,
+            camera,
+        })
+    }
+}

@@ -1,0 +1,159 @@
+//! `depthmesh cluster status`: the site's workers, shards, lag per sensor
+//! and frames per second, from the heartbeats, leases and checkpoints.
+
+use crate::checkpoint::{read_manifest, shard_key};
+use crate::error::{ClusterError, Result};
+use crate::fetch::{frames_by_sensor, SensorFrames};
+use crate::site::Site;
+use crate::worker::Heartbeat;
+use async_nats::jetstream::consumer::{pull, DeliverPolicy};
+use futures_util::TryStreamExt;
+use serde::Serialize;
+use std::collections::BTreeMap;
+use std::time::Duration;
+
+/// One shard as the site knows it.
+#[derive(Clone, Debug, Serialize)]
+pub struct ShardStatus {
+    /// The shard.
+    pub shard: u32,
+    /// Its owner, if leased.
+    pub owner: Option<String>,
+    /// The next stream position it will fuse (its owner's heartbeat, or
+    /// after its checkpoint).
+    pub next: u64,
+    /// The position its last checkpoint includes.
+    pub checkpoint: u64,
+    /// Frames its last checkpoint had fused.
+    pub frames: u64,
+    /// Blocks in its last checkpoint.
+    pub blocks: u64,
+}
+
+/// One sensor's frames and how many of them are not fused everywhere yet.
+#[derive(Clone, Debug, Serialize)]
+pub struct SensorStatus {
+    /// Frames on the stream.
+    pub frames: SensorFrames,
+    /// Posed frames after the position of the shard furthest behind.
+    pub lag: u64,
+}
+
+/// The site at one moment.
+#[derive(Clone, Debug, Serialize)]
+pub struct Status {
+    /// The site.
+    pub site: String,
+    /// The stream's last message.
+    pub stream_last: u64,
+    /// Live workers.
+    pub workers: Vec<Heartbeat>,
+    /// Frames per second, summed over the workers.
+    pub frames_per_second: f64,
+    /// Every shard.
+    pub shards: Vec<ShardStatus>,
+    /// Every sensor.
+    pub sensors: BTreeMap<String, SensorStatus>,
+    /// Messages after the position of the shard furthest behind.
+    pub lag: u64,
+}
+
+/// The site's status now.
+pub async fn status(site: &Site) -> Result<Status> {
+    let config = site.required_config().await?;
+    let stream_last = site.last_seq().await?;
+    let workers = heartbeats(site).await?;
+    let mut shards = Vec::new();
+    for s in 0..config.regions.shards {
+        let owner = site
+            .leases
+            .get(shard_key(s))
+            .await
+            .map_err(|e| ClusterError::bus("cannot read a lease", e))?
+            .map(|v| String::from_utf8_lossy(&v).into_owned());
+        let manifest = read_manifest(site, s)
+            .await?
+            .map(|(m, _)| m)
+            .unwrap_or_default();
+        let live = workers
+            .iter()
+            .flat_map(|w| w.shards.iter())
+            .find(|(shard, _)| *shard == s)
+            .map(|(_, next)| *next);
+        shards.push(ShardStatus {
+            shard: s,
+            owner,
+            next: live.unwrap_or(manifest.seq + 1).max(manifest.seq + 1),
+            checkpoint: manifest.seq,
+            frames: manifest.frames,
+            blocks: manifest.blocks,
+        });
+    }
+    let behind = shards.iter().map(|s| s.next).min().unwrap_or(1);
+    let mut sensors = BTreeMap::new();
+    for (name, frames) in frames_by_sensor(site).await? {
+        let lag = pending(site, &site.posed_subject(&name), behind).await?;
+        sensors.insert(name, SensorStatus { frames, lag });
+    }
+    Ok(Status {
+        site: site.name.clone(),
+        stream_last,
+        frames_per_second: workers.iter().map(|w| w.frames_per_second).sum(),
+        workers,
+        shards,
+        sensors,
+        lag: (stream_last + 1).saturating_sub(behind),
+    })
+}
+
+/// The live workers' last heartbeats.
+async fn heartbeats(site: &Site) -> Result<Vec<Heartbeat>> {
+    let keys: Vec<String> = site
+        .workers
+        .keys()
+        .await
+        .map_err(|e| ClusterError::bus("cannot list the workers", e))?
+        .try_collect()
+        .await
+        .map_err(|e| ClusterError::bus("cannot list the workers", e))?;
+    let mut out = Vec::new();
+    for key in keys {
+        let Some(bytes) = site
+            .workers
+            .get(&key)
+            .await
+            .map_err(|e| ClusterError::bus("cannot read a heartbeat", e))?
+        else {
+            continue;
+        };
+        if let Ok(beat) = serde_json::from_slice::<Heartbeat>(&bytes) {
+            out.push(beat);
+        }
+    }
+    out.sort_by(|a, b| a.id.cmp(&b.id));
+    Ok(out)
+}
+
+/// Messages on `subject` from position `from` on.
+async fn pending(site: &Site, subject: &str, from: u64) -> Result<u64> {
+    let mut consumer = site
+        .stream
+        .create_consumer(pull::Config {
+            filter_subject: subject.to_string(),
+            deliver_policy: DeliverPolicy::ByStartSequence {
+                start_sequence: from.max(1),
+            },
+            inactive_threshold: Duration::from_secs(5),
+            ..Default::default()
+        })
+        .await
+        .map_err(|e| ClusterError::bus("cannot count a sensor's waiting frames", e))?;
+    let info = consumer
+        .info()
+        .await
+        .map_err(|e| ClusterError::bus("cannot count a sensor's waiting frames", e))?;
+    let pending = info.num_pending;
+    let name = info.name.clone();
+    let _ = site.stream.delete_consumer(&name).await;
+    Ok(pending)
+}

@@ -1,0 +1,445 @@
+//! A fusion worker (`depthmesh cluster worker`): owns some of the site's
+//! shards, fuses into them every posed frame of the stream in the stream's
+//! order, checkpoints them, and hands them over.
+//!
+//! Each owned shard has its own position in the stream. The worker reads
+//! the message at the smallest position and fuses it into the shards at
+//! that position only, so a shard taken over from a checkpoint behind the
+//! others catches up by itself, frame by frame, until it reaches them; a
+//! frame is read once however many shards it feeds. A checkpoint commits
+//! a shard's blocks with the position they include; a shard is taken over
+//! from its last checkpoint and continues after it, so every frame is fused
+//! into every shard exactly once, whoever owned it when.
+//!
+//! Every quarter of the lease time the worker renews its leases (a lease it
+//! cannot renew is given up at once: another worker may have it), says it
+//! is alive, and balances: it takes unowned shards while it has fewer than
+//! its share (all shards over the live workers, rounded up), and gives one
+//! back, checkpointed, while it has more.
+
+use crate::checkpoint::{
+    commit, encode_segment, load_blocks, read_manifest, shard_key, write_segment, Manifest,
+};
+use crate::error::{ClusterError, Result};
+use crate::fuse::{Fused, Fuser, StreamReader};
+use crate::site::Site;
+use async_nats::jetstream::kv;
+use depthmesh::tsdf::regions::Regions;
+use futures_util::TryStreamExt;
+use glam::IVec3;
+use serde::{Deserialize, Serialize};
+use std::sync::atomic::{AtomicBool, Ordering};
+use std::time::{Duration, Instant, SystemTime, UNIX_EPOCH};
+
+/// A shard's checkpoints are rewritten whole (the older segments deleted)
+/// once it has this many: loading a shard then reads at most this many.
+const MAX_SEGMENTS: usize = 8;
+
+/// How a worker runs.
+#[derive(Clone, Debug)]
+pub struct WorkerOptions {
+    /// Its name, unique on the site.
+    pub id: String,
+    /// A shard is checkpointed after this many frames fused into it (and
+    /// whenever the worker has caught up with the stream).
+    pub checkpoint_every: u64,
+}
+
+/// One live worker's figures, as its heartbeat says them.
+#[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
+pub struct Heartbeat {
+    /// The worker.
+    pub id: String,
+    /// Its shards and each one's next stream position.
+    pub shards: Vec<(u32, u64)>,
+    /// Messages read and fused per second since the last heartbeat.
+    pub frames_per_second: f64,
+    /// Messages read and fused since it started.
+    pub frames: u64,
+    /// Checkpoints committed since it started.
+    pub checkpoints: u64,
+    /// Seconds since the Unix epoch when it was sent.
+    pub at: f64,
+}
+
+/// A shard this worker owns.
+struct Owned {
+    shard: u32,
+    /// The next stream position to fuse.
+    next: u64,
+    /// Posed frames fused into it and frames rejected, all told.
+    frames: u64,
+    rejected: u64,
+    lease_revision: u64,
+    renewed: Instant,
+    /// The last committed checkpoint and its revision.
+    manifest: Manifest,
+    manifest_revision: Option<u64>,
+    /// The volume's frame count when that checkpoint was taken.
+    saved_at: u32,
+}
+
+impl Owned {
+    fn unsaved(&self) -> bool {
+        self.next - 1 > self.manifest.seq
+    }
+
+    fn frames_since_save(&self) -> u64 {
+        self.frames + self.rejected - self.manifest.frames - self.manifest.rejected
+    }
+}
+
+/// The worker's state between messages.
+struct Worker<'a> {
+    site: &'a Site,
+    options: &'a WorkerOptions,
+    regions: Regions,
+    fuser: Fuser,
+    owned: Vec<Owned>,
+    /// Messages read since start and at the last heartbeat, checkpoints made.
+    frames: u64,
+    frames_at_beat: u64,
+    beat_at: Instant,
+    checkpoints: u64,
+}
+
+/// Runs a worker on `site` until `stop` is set; then checkpoints its
+/// shards and gives them back.
+pub async fn run(site: &Site, options: &WorkerOptions, stop: &AtomicBool) -> Result<()> {
+    let config = site.required_config().await?;
+    let mut w = Worker {
+        site,
+        options,
+        regions: config.regions,
+        fuser: Fuser::new(config)?,
+        owned: Vec::new(),
+        frames: 0,
+        frames_at_beat: 0,
+        beat_at: Instant::now(),
+        checkpoints: 0,
+    };
+    let mut reader = StreamReader::new(site);
+    let mut last = site.last_seq().await?;
+    let beat_every = site.lease_ttl / 4;
+    let mut next_beat = Instant::now();
+    while !stop.load(Ordering::Relaxed) {
+        if Instant::now() >= next_beat {
+            w.heartbeat().await?;
+            next_beat = Instant::now() + beat_every;
+        }
+        let Some(at) = w.owned.iter().map(|o| o.next).min() else {
+            tokio::time::sleep(beat_every.min(Duration::from_millis(200))).await;
+            continue;
+        };
+        if at > last {
+            last = site.last_seq().await?;
+            if at > last {
+                w.save_unsaved().await?;
+                tokio::time::sleep(Duration::from_millis(20)).await;
+                continue;
+            }
+        }
+        let msg = reader.get(at, last).await?;
+        w.fuse_at(at, msg).await?;
+    }
+    w.release_all().await
+}
+
+impl Worker<'_> {
+    /// Fuses message `at` into the shards waiting for it.
+    async fn fuse_at(
+        &mut self,
+        at: u64,
+        msg: Option<async_nats::jetstream::message::StreamMessage>,
+    ) -> Result<()> {
+        let mut members = vec![false; self.regions.shards as usize];
+        for o in self.owned.iter().filter(|o| o.next == at) {
+            members[o.shard as usize] = true;
+        }
+        let regions = self.regions;
+        let keep = |k: IVec3| members[regions.shard_of(k) as usize];
+        let fused = match &msg {
+            Some(m) => self.fuser.fuse(self.site, m, keep).await?,
+            None => Fused::Skipped,
+        };
+        if let Fused::Rejected(why) = &fused {
+            eprintln!("worker {}: message {at} rejected: {why}", self.options.id);
+        }
+        self.frames += 1;
+        let mut due = Vec::new();
+        for o in self.owned.iter_mut().filter(|o| o.next == at) {
+            o.next = at + 1;
+            match fused {
+                Fused::Frame => o.frames += 1,
+                Fused::Rejected(_) => o.rejected += 1,
+                Fused::Skipped => {}
+            }
+            if o.frames_since_save() >= self.options.checkpoint_every {
+                due.push(o.shard);
+            }
+        }
+        for shard in due {
+            self.checkpoint(shard).await?;
+        }
+        Ok(())
+    }
+
+    /// Checkpoints every shard with frames not yet committed.
+    async fn save_unsaved(&mut self) -> Result<()> {
+        let unsaved: Vec<u32> = self
+            .owned
+            .iter()
+            .filter(|o| o.unsaved())
+            .map(|o| o.shard)
+            .collect();
+        for shard in unsaved {
+            self.checkpoint(shard).await?;
+        }
+        Ok(())
+    }
+
+    /// The keys of the blocks of `shard` this worker holds.
+    fn shard_blocks(&self, shard: u32) -> Vec<IVec3> {
+        let r = self.regions;
+        self.fuser
+            .volume
+            .blocks()
+            .iter()
+            .map(|b| b.key)
+            .filter(|&k| r.shard_of(k) == shard)
+            .collect()
+    }
+
+    /// Commits `shard`'s changes since its last checkpoint; if another
+    /// worker committed it meanwhile, the shard is given up.
+    async fn checkpoint(&mut self, shard: u32) -> Result<()> {
+        let Some(i) = self.owned.iter().position(|o| o.shard == shard) else {
+            return Ok(());
+        };
+        let o = &self.owned[i];
+        let full = o.manifest.segments.len() >= MAX_SEGMENTS;
+        let keys: Vec<IVec3> = if full {
+            self.shard_blocks(shard)
+        } else {
+            let r = self.regions;
+            let mut k = self.fuser.volume.changed_after(o.saved_at);
+            k.retain(|&k| r.shard_of(k) == shard);
+            k
+        };
+        let saved_at = self.fuser.volume.frames();
+        let volume = &self.fuser.volume;
+        let bytes = tokio::task::block_in_place(|| {
+            encode_segment(keys.iter().filter_map(|&k| volume.block(k)))
+        });
+        let seq = o.next - 1;
+        let name = format!("shard-{shard}/{seq:012}-{}", self.options.id);
+        write_segment(self.site, &name, &bytes).await?;
+        let mut manifest = Manifest {
+            seq,
+            frames: o.frames,
+            rejected: o.rejected,
+            segments: if full {
+                vec![name.clone()]
+            } else {
+                let mut s = o.manifest.segments.clone();
+                s.push(name.clone());
+                s
+            },
+            blocks: self.shard_blocks(shard).len() as u64,
+            segment_bytes: bytes.len() as u64,
+            writer: self.options.id.clone(),
+        };
+        if !full {
+            manifest.segment_bytes += o.manifest.segment_bytes;
+        }
+        match commit(self.site, shard, &manifest, o.manifest_revision).await? {
+            Some(revision) => {
+                let o = &mut self.owned[i];
+                let old = std::mem::replace(&mut o.manifest, manifest);
+                o.manifest_revision = Some(revision);
+                o.saved_at = saved_at;
+                self.checkpoints += 1;
+                if full {
+                    for name in old.segments {
+                        // A segment left behind wastes space, nothing more.
+                        let _ = self.site.checkpoints.delete(&name).await;
+                    }
+                }
+            }
+            None => {
+                eprintln!(
+                    "worker {}: shard {shard} was committed by another worker; giving it up",
+                    self.options.id
+                );
+                let _ = self.site.checkpoints.delete(&name).await;
+                self.forget(shard);
+            }
+        }
+        Ok(())
+    }
+
+    /// Drops `shard` and its blocks without saving anything.
+    fn forget(&mut self, shard: u32) {
+        let keys = self.shard_blocks(shard);
+        self.fuser.volume.remove_blocks(&keys);
+        self.owned.retain(|o| o.shard != shard);
+    }
+
+    /// Renews leases, says this worker is alive, balances shards.
+    async fn heartbeat(&mut self) -> Result<()> {
+        self.renew().await?;
+        let now = Instant::now();
+        let seconds = now.duration_since(self.beat_at).as_secs_f64().max(1e-3);
+        let beat = Heartbeat {
+            id: self.options.id.clone(),
+            shards: self.owned.iter().map(|o| (o.shard, o.next)).collect(),
+            frames_per_second: (self.frames - self.frames_at_beat) as f64 / seconds,
+            frames: self.frames,
+            checkpoints: self.checkpoints,
+            at: SystemTime::now()
+                .duration_since(UNIX_EPOCH)
+                .map_or(0.0, |d| d.as_secs_f64()),
+        };
+        self.frames_at_beat = self.frames;
+        self.beat_at = now;
+        let bytes = serde_json::to_vec(&beat).expect("heartbeat serialises");
+        self.site
+            .workers
+            .put(&self.options.id, bytes.into())
+            .await
+            .map_err(|e| ClusterError::bus("cannot send a heartbeat", e))?;
+        self.balance().await
+    }
+
+    /// Renews every lease; gives up a shard whose lease is gone or
+    /// another's, or was not renewed within the lease time.
+    async fn renew(&mut self) -> Result<()> {
+        let ttl = self.site.lease_ttl;
+        let mut lost = Vec::new();
+        for o in &mut self.owned {
+            let key = shard_key(o.shard);
+            match self
+                .site
+                .leases
+                .update(&key, self.options.id.clone().into(), o.lease_revision)
+                .await
+            {
+                Ok(r) => {
+                    o.lease_revision = r;
+                    o.renewed = Instant::now();
+                }
+                Err(e) if e.kind() == kv::UpdateErrorKind::WrongLastRevision => lost.push(o.shard),
+                Err(_) if o.renewed.elapsed() >= ttl => lost.push(o.shard),
+                Err(_) => {}
+            }
+        }
+        for shard in lost {
+            eprintln!("worker {}: lease of shard {shard} lost", self.options.id);
+            self.forget(shard);
+        }
+        Ok(())
+    }
+
+    /// Takes free shards up to this worker's share, or gives one back above it.
+    async fn balance(&mut self) -> Result<()> {
+        let live = self.live_workers().await?.max(1);
+        let shards = self.regions.shards;
+        let share = shards.div_ceil(live) as usize;
+        if self.owned.len() > share {
+            let shard = self.owned.last().map(|o| o.shard).expect("owns shards");
+            return self.release(shard).await;
+        }
+        // Start where this worker's name points, so workers starting
+        // together try different shards first.
+        let offset = self.options.id.bytes().map(u32::from).sum::<u32>() % shards;
+        for s in (0..shards).map(|i| (i + offset) % shards) {
+            if self.owned.len() >= share {
+                break;
+            }
+            if self.owned.iter().any(|o| o.shard == s) {
+                continue;
+            }
+            if let Ok(revision) = self
+                .site
+                .leases
+                .create(shard_key(s), self.options.id.clone().into())
+                .await
+            {
+                self.take(s, revision).await?;
+            }
+        }
+        Ok(())
+    }
+
+    /// Workers whose heartbeats have not expired.
+    async fn live_workers(&self) -> Result<u32> {
+        let keys = self
+            .site
+            .workers
+            .keys()
+            .await
+            .map_err(|e| ClusterError::bus("cannot list the workers", e))?;
+        let keys: Vec<String> = keys
+            .try_collect()
+            .await
+            .map_err(|e| ClusterError::bus("cannot list the workers", e))?;
+        Ok(keys.len() as u32)
+    }
+
+    /// Loads `shard` from its last checkpoint, now that its lease is ours.
+    async fn take(&mut self, shard: u32, lease_revision: u64) -> Result<()> {
+        let (manifest, manifest_revision) = match read_manifest(self.site, shard).await? {
+            Some((m, r)) => (m, Some(r)),
+            None => (Manifest::default(), None),
+        };
+        let blocks = load_blocks(self.site, shard, &manifest).await?;
+        self.fuser
+            .volume
+            .restore(blocks.into_values().collect(), 0)?;
+        eprintln!(
+            "worker {}: took shard {shard} at message {} ({} frames fused)",
+            self.options.id, manifest.seq, manifest.frames
+        );
+        self.owned.push(Owned {
+            shard,
+            next: manifest.seq + 1,
+            frames: manifest.frames,
+            rejected: manifest.rejected,
+            lease_revision,
+            renewed: Instant::now(),
+            manifest,
+            manifest_revision,
+            saved_at: self.fuser.volume.frames(),
+        });
+        Ok(())
+    }
+
+    /// Checkpoints `shard` and gives its lease back.
+    async fn release(&mut self, shard: u32) -> Result<()> {
+        let Some(o) = self.owned.iter().find(|o| o.shard == shard) else {
+            return Ok(());
+        };
+        if o.unsaved() {
+            self.checkpoint(shard).await?;
+        }
+        if let Some(o) = self.owned.iter().find(|o| o.shard == shard) {
+            let _ = self
+                .site
+                .leases
+                .delete_expect_revision(shard_key(shard), Some(o.lease_revision))
+                .await;
+            self.forget(shard);
+        }
+        Ok(())
+    }
+
+    /// Gives every shard back, checkpointed, and says goodbye.
+    async fn release_all(&mut self) -> Result<()> {
+        let shards: Vec<u32> = self.owned.iter().map(|o| o.shard).collect();
+        for shard in shards {
+            self.release(shard).await?;
+        }
+        let _ = self.site.workers.delete(&self.options.id).await;
+        Ok(())
+    }
+}
