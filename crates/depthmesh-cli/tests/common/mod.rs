@@ -2,6 +2,8 @@
 //! folder per test, and the checks every failure must pass.
 
 #[allow(dead_code)] // not every test file needs it
+pub mod nats;
+#[allow(dead_code)] // not every test file needs it
 pub mod served;
 #[allow(dead_code)] // not every test file needs it
 pub mod webdriver;

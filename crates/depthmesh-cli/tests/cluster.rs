@@ -1,0 +1,241 @@
+//! The cluster on one machine: a JetStream `nats-server` on loopback,
+//! three fusion workers, two sensors publishing simulated frames of one
+//! scene; one worker is killed with SIGKILL halfway, and the map fetched
+//! from the shards' checkpoints equals a single-process replay of the
+//! stream, every frame fused once. With the sensors' frames in folder
+//! order, the cluster's map equals `reconstruct`'s. Needs `nats-server`,
+//! so it is ignored by default; `.ci/cluster` installs it and runs it.
+
+mod common;
+
+use common::nats::NatsServer;
+use common::{depthmesh, ok, scratch, simulated_frames_folder};
+use depthmesh::mesh::ply::read_ply;
+use std::path::Path;
+use std::process::{Child, Command, Output, Stdio};
+use std::time::{Duration, Instant};
+
+/// A child process killed when dropped (a failed test leaves none behind).
+struct Running(Child);
+
+impl Drop for Running {
+    fn drop(&mut self) {
+        let _ = self.0.kill();
+        let _ = self.0.wait();
+    }
+}
+
+/// Starts `depthmesh` with `args` in the background, its stderr to `log`.
+fn spawn(args: &[&str], log: &Path) -> Running {
+    Running(
+        Command::new(env!("CARGO_BIN_EXE_depthmesh"))
+            .args(args)
+            .current_dir(env!("CARGO_MANIFEST_DIR"))
+            .stdout(Stdio::null())
+            .stderr(std::fs::File::create(log).unwrap())
+            .spawn()
+            .expect("the binary runs"),
+    )
+}
+
+/// Waits for a background command, at most `limit`.
+fn finish(mut run: Running, limit: Duration) -> std::process::ExitStatus {
+    let deadline = Instant::now() + limit;
+    loop {
+        if let Some(status) = run.0.try_wait().unwrap() {
+            return status;
+        }
+        assert!(Instant::now() < deadline, "a command ran over {limit:?}");
+        std::thread::sleep(Duration::from_millis(50));
+    }
+}
+
+fn json(output: &Output) -> serde_json::Value {
+    ok(output);
+    serde_json::from_slice(&output.stdout).unwrap()
+}
+
+/// The triangles of a PLY mesh as corner positions (exact bits), each
+/// starting at its smallest corner, sorted: equal for the same surface
+/// whatever the order of vertices and faces.
+fn triangles(path: &Path) -> Vec<[[u32; 3]; 3]> {
+    let mesh = read_ply(path).unwrap();
+    let mut out: Vec<[[u32; 3]; 3]> = mesh
+        .triangles
+        .iter()
+        .map(|t| {
+            let c = |i: u32| mesh.positions[i as usize].to_array().map(f32::to_bits);
+            let mut tri = [c(t[0]), c(t[1]), c(t[2])];
+            let first = (0..3).min_by_key(|&i| tri[i]).unwrap();
+            tri.rotate_left(first);
+            tri
+        })
+        .collect();
+    out.sort_unstable();
+    out
+}
+
+fn status(url: &str, site: &str) -> serde_json::Value {
+    json(&depthmesh(&[
+        "cluster", "status", "--nats", url, "--site", site,
+    ]))
+}
+
+#[test]
+#[ignore = "needs nats-server: run by .ci/cluster"]
+fn a_worker_killed_halfway_loses_no_frame_and_fuses_none_twice() {
+    let dir = scratch("cluster-kill");
+    let frames = dir.join("frames");
+    std::fs::create_dir_all(&frames).unwrap();
+    simulated_frames_folder(&frames, 60);
+    let nats = NatsServer::start(&dir);
+    let url = nats.url.as_str();
+    let site = ["--nats", url, "--site", "kill"];
+    let worker = |name: &str| {
+        let mut args = vec![
+            "cluster",
+            "worker",
+            "--name",
+            name,
+            "--lease-seconds",
+            "1.5",
+        ];
+        args.extend(["--checkpoint-every", "4", "--region-blocks", "2"]);
+        args.extend(site);
+        spawn(&args, &dir.join(format!("{name}.log")))
+    };
+    let (w1, w2, w3) = (worker("w1"), worker("w2"), worker("w3"));
+    let publish = |sensor: &str, range: &str| {
+        let f = frames.to_str().unwrap();
+        let mut args = vec![
+            "stream", f, "--frames", range, "--sensor", sensor, "--rate", "15",
+        ];
+        args.extend(site);
+        spawn(&args, &dir.join(format!("{sensor}.log")))
+    };
+    let (a, b) = (publish("a", "0..30"), publish("b", "30..60"));
+    // Halfway through the two seconds of frames, once w2 holds shards.
+    std::thread::sleep(Duration::from_millis(1000));
+    let before = status(url, "kill");
+    let held = before["workers"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .find(|w| w["id"] == "w2")
+        .map_or(0, |w| w["shards"].as_array().unwrap().len());
+    assert!(held > 0, "w2 owned no shard when killed: {before}");
+    drop(w2);
+    assert!(finish(a, Duration::from_secs(60)).success());
+    assert!(finish(b, Duration::from_secs(60)).success());
+
+    let fetched = dir.join("fetched.ply");
+    let report = json(&depthmesh(&[
+        "cluster",
+        "fetch",
+        "--nats",
+        url,
+        "--site",
+        "kill",
+        "--wait",
+        "--timeout",
+        "60",
+        "-o",
+        fetched.to_str().unwrap(),
+    ]));
+    assert_eq!(report["frames_in_stream"], 60, "{report}");
+    assert_eq!(report["every_frame_fused_once"], true, "{report}");
+    let after = status(url, "kill");
+    assert_eq!(after["lag"], 0, "{after}");
+    let ids: Vec<&str> = after["workers"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|w| w["id"].as_str().unwrap())
+        .collect();
+    assert_eq!(ids, ["w1", "w3"], "{after}");
+    let taken = std::fs::read_to_string(dir.join("w1.log")).unwrap()
+        + &std::fs::read_to_string(dir.join("w3.log")).unwrap();
+    assert!(taken.contains("took shard"), "{taken}");
+
+    let replayed = dir.join("replayed.ply");
+    let replay = json(&depthmesh(&[
+        "cluster",
+        "replay",
+        "--nats",
+        url,
+        "--site",
+        "kill",
+        "--quiet",
+        "--region-blocks",
+        "2",
+        "-o",
+        replayed.to_str().unwrap(),
+    ]));
+    assert_eq!(replay["frames"], 60);
+    assert!(report["triangles"].as_u64().unwrap() > 10_000, "{report}");
+    assert_eq!(report["triangles"], replay["triangles"]);
+    // Both list blocks in key order: the same map is the same file.
+    assert!(std::fs::read(&fetched).unwrap() == std::fs::read(&replayed).unwrap());
+    drop((w1, w3));
+}
+
+#[test]
+#[ignore = "needs nats-server: run by .ci/cluster"]
+fn sensors_published_in_folder_order_give_the_map_reconstruct_makes() {
+    let dir = scratch("cluster-order");
+    let frames = dir.join("frames");
+    std::fs::create_dir_all(&frames).unwrap();
+    simulated_frames_folder(&frames, 24);
+    let nats = NatsServer::start(&dir);
+    let url = nats.url.as_str();
+    let f = frames.to_str().unwrap();
+    for (sensor, range) in [("a", "0..12"), ("b", "12..24")] {
+        ok(&depthmesh(&[
+            "stream", f, "--frames", range, "--nats", url, "--site", "order", "--sensor", sensor,
+            "--rate", "max", "--quiet",
+        ]));
+    }
+    let workers: Vec<Running> = ["w1", "w2"]
+        .iter()
+        .map(|name| {
+            spawn(
+                &[
+                    "cluster", "worker", "--nats", url, "--site", "order", "--name", name,
+                ],
+                &dir.join(format!("{name}.log")),
+            )
+        })
+        .collect();
+    let fetched = dir.join("fetched.ply");
+    let report = json(&depthmesh(&[
+        "cluster",
+        "fetch",
+        "--nats",
+        url,
+        "--site",
+        "order",
+        "--wait",
+        "--timeout",
+        "60",
+        "-o",
+        fetched.to_str().unwrap(),
+    ]));
+    assert_eq!(report["every_frame_fused_once"], true, "{report}");
+    let out = dir.join("reconstructed");
+    ok(&depthmesh(&[
+        "reconstruct",
+        f,
+        "--out",
+        out.to_str().unwrap(),
+        "--quiet",
+    ]));
+    let (cluster, alone) = (triangles(&fetched), triangles(&out.join("mesh.ply")));
+    assert!(alone.len() > 5_000, "{}", alone.len());
+    assert!(
+        cluster == alone,
+        "{} against {} triangles",
+        cluster.len(),
+        alone.len()
+    );
+    drop(workers);
+}

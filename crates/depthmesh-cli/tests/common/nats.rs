@@ -1,0 +1,79 @@
+//! A JetStream-enabled `nats-server` on a loopback port of its own choosing,
+//! its data in a scratch folder, stopped when dropped.
+
+use std::path::Path;
+use std::process::{Child, Command, Stdio};
+use std::time::{Duration, Instant};
+
+/// A running `nats-server`.
+pub struct NatsServer {
+    child: Child,
+    /// `nats://127.0.0.1:PORT`.
+    pub url: String,
+}
+
+impl NatsServer {
+    /// Starts one with its store under `dir`; panics, saying so, when
+    /// `nats-server` is not installed (`.ci/cluster` installs it).
+    pub fn start(dir: &Path) -> NatsServer {
+        let ports = dir.join("ports");
+        std::fs::create_dir_all(&ports).unwrap();
+        let child = Command::new(binary())
+            .args(["-js", "-a", "127.0.0.1", "-p", "-1", "--http_port", "0"])
+            .arg("-sd")
+            .arg(dir.join("jetstream"))
+            .arg("--ports_file_dir")
+            .arg(&ports)
+            .stdout(Stdio::null())
+            .stderr(Stdio::null())
+            .spawn()
+            .expect("nats-server runs (Debian's nats-server package; .ci/cluster installs it)");
+        let deadline = Instant::now() + Duration::from_secs(20);
+        let url = loop {
+            let file = std::fs::read_dir(&ports)
+                .unwrap()
+                .flatten()
+                .find(|e| e.path().extension().is_some_and(|x| x == "ports"));
+            let found = file
+                .and_then(|f| std::fs::read_to_string(f.path()).ok())
+                .and_then(|text| serde_json::from_str::<serde_json::Value>(&text).ok())
+                .and_then(|v| v["nats"][0].as_str().map(str::to_string));
+            if let Some(url) = found {
+                break url;
+            }
+            assert!(
+                Instant::now() < deadline,
+                "nats-server did not start in 20 s"
+            );
+            std::thread::sleep(Duration::from_millis(50));
+        };
+        NatsServer { child, url }
+    }
+}
+
+/// `nats-server` on the PATH, or where Debian puts it (`/usr/sbin`, which
+/// a user's PATH may lack).
+fn binary() -> std::path::PathBuf {
+    let on_path = std::env::var_os("PATH")
+        .map(|p| {
+            std::env::split_paths(&p)
+                .map(|d| d.join("nats-server"))
+                .collect::<Vec<_>>()
+        })
+        .unwrap_or_default();
+    on_path
+        .into_iter()
+        .chain([
+            "/usr/sbin/nats-server".into(),
+            "/usr/bin/nats-server".into(),
+        ])
+        .find(|p| p.is_file())
+        .unwrap_or_else(|| "nats-server".into())
+}
+
+impl Drop for NatsServer {
+    fn drop(&mut self) {
+        let _ = self.child.kill();
+        let _ = self.child.wait();
+    }
+}
