@@ -92,8 +92,17 @@ async fn manifests(site: &Site, shards: u32) -> Result<Vec<Option<Manifest>>> {
 /// waits (at most that long) until every shard's checkpoint includes the
 /// whole stream, i.e. every frame published so far is fused.
 pub async fn fetch(site: &Site, wait: Option<Duration>) -> Result<(Mesh, FetchReport)> {
-    let config = site.required_config().await?;
     let start = Instant::now();
+    // Waiting covers a site whose first worker has not started yet.
+    let config = loop {
+        match (site.config().await?, wait) {
+            (Some(c), _) => break c,
+            (None, Some(limit)) if start.elapsed() < limit => {
+                tokio::time::sleep(Duration::from_millis(200)).await
+            }
+            (None, _) => break site.required_config().await?,
+        }
+    };
     let shards = config.regions.shards;
     let (all, last) = loop {
         let last = site.last_seq().await?;

@@ -11,6 +11,7 @@ use depthmesh::tsdf::mesh::extract_blocks;
 use depthmesh::tsdf::TsdfVolume;
 use glam::IVec3;
 use std::collections::VecDeque;
+use std::time::Instant;
 use tokio::task::JoinHandle;
 
 /// Messages fetched ahead of the one being fused, so the bus's round trips
@@ -76,12 +77,23 @@ pub enum Fused {
     Rejected(String),
 }
 
+/// Where a fuser's time went, in seconds.
+#[derive(Clone, Copy, Debug, Default, PartialEq, serde::Serialize, serde::Deserialize)]
+pub struct FuseTimes {
+    /// Decoding frames into depth images (every worker decodes every frame).
+    pub decode: f64,
+    /// Finding the blocks a frame touches and fusing those asked for.
+    pub integrate: f64,
+}
+
 /// A TSDF volume fed from the stream.
 pub struct Fuser {
     /// The site's settings.
     pub config: SiteConfig,
     /// The blocks fused so far.
     pub volume: TsdfVolume,
+    /// Time spent so far.
+    pub times: FuseTimes,
     reader: FrameReader,
 }
 
@@ -91,6 +103,7 @@ impl Fuser {
         Ok(Fuser {
             config,
             volume: TsdfVolume::new(config.tsdf())?,
+            times: FuseTimes::default(),
             reader: FrameReader::default(),
         })
     }
@@ -110,12 +123,17 @@ impl Fuser {
         let range = (self.config.depth_min, self.config.depth_max);
         let volume = &mut self.volume;
         let reader = &mut self.reader;
+        let times = &mut self.times;
         tokio::task::block_in_place(|| {
+            let start = Instant::now();
             let frame = match reader.read(&msg.payload, camera, range) {
                 Ok(f) => f,
                 Err(why) => return Ok(Fused::Rejected(format!("{sensor}: {why}"))),
             };
+            let decoded = Instant::now();
             volume.integrate_where(frame.depth, None, &frame.camera, &frame.pose, keep)?;
+            times.decode += decoded.duration_since(start).as_secs_f64();
+            times.integrate += decoded.elapsed().as_secs_f64();
             Ok(Fused::Frame)
         })
     }

@@ -14,14 +14,14 @@
 //! Every quarter of the lease time the worker renews its leases (a lease it
 //! cannot renew is given up at once: another worker may have it), says it
 //! is alive, and balances: it takes unowned shards while it has fewer than
-//! its share (all shards over the live workers, rounded up), and gives one
-//! back, checkpointed, while it has more.
+//! its share (all shards over the live workers, rounded up), and gives
+//! those above it back, checkpointed.
 
 use crate::checkpoint::{
     commit, encode_segment, load_blocks, read_manifest, shard_key, write_segment, Manifest,
 };
 use crate::error::{ClusterError, Result};
-use crate::fuse::{Fused, Fuser, StreamReader};
+use crate::fuse::{FuseTimes, Fused, Fuser, StreamReader};
 use crate::site::Site;
 use async_nats::jetstream::kv;
 use depthmesh::tsdf::regions::Regions;
@@ -58,6 +58,10 @@ pub struct Heartbeat {
     pub frames: u64,
     /// Checkpoints committed since it started.
     pub checkpoints: u64,
+    /// Seconds spent decoding and fusing since it started.
+    pub fuse_seconds: FuseTimes,
+    /// Seconds spent writing checkpoints since it started.
+    pub checkpoint_seconds: f64,
     /// Seconds since the Unix epoch when it was sent.
     pub at: f64,
 }
@@ -101,6 +105,7 @@ struct Worker<'a> {
     frames_at_beat: u64,
     beat_at: Instant,
     checkpoints: u64,
+    checkpoint_seconds: f64,
 }
 
 /// Runs a worker on `site` until `stop` is set; then checkpoints its
@@ -117,6 +122,7 @@ pub async fn run(site: &Site, options: &WorkerOptions, stop: &AtomicBool) -> Res
         frames_at_beat: 0,
         beat_at: Instant::now(),
         checkpoints: 0,
+        checkpoint_seconds: 0.0,
     };
     let mut reader = StreamReader::new(site);
     let mut last = site.last_seq().await?;
@@ -213,6 +219,13 @@ impl Worker<'_> {
     /// Commits `shard`'s changes since its last checkpoint; if another
     /// worker committed it meanwhile, the shard is given up.
     async fn checkpoint(&mut self, shard: u32) -> Result<()> {
+        let start = Instant::now();
+        let done = self.commit_checkpoint(shard).await;
+        self.checkpoint_seconds += start.elapsed().as_secs_f64();
+        done
+    }
+
+    async fn commit_checkpoint(&mut self, shard: u32) -> Result<()> {
         let Some(i) = self.owned.iter().position(|o| o.shard == shard) else {
             return Ok(());
         };
@@ -296,6 +309,8 @@ impl Worker<'_> {
             frames_per_second: (self.frames - self.frames_at_beat) as f64 / seconds,
             frames: self.frames,
             checkpoints: self.checkpoints,
+            fuse_seconds: self.fuser.times,
+            checkpoint_seconds: self.checkpoint_seconds,
             at: SystemTime::now()
                 .duration_since(UNIX_EPOCH)
                 .map_or(0.0, |d| d.as_secs_f64()),
@@ -346,8 +361,11 @@ impl Worker<'_> {
         let shards = self.regions.shards;
         let share = shards.div_ceil(live) as usize;
         if self.owned.len() > share {
-            let shard = self.owned.last().map(|o| o.shard).expect("owns shards");
-            return self.release(shard).await;
+            let extra: Vec<u32> = self.owned[share..].iter().map(|o| o.shard).collect();
+            for shard in extra {
+                self.release(shard).await?;
+            }
+            return Ok(());
         }
         // Start where this worker's name points, so workers starting
         // together try different shards first.
