@@ -6,7 +6,9 @@ use crate::progress;
 use anyhow::{bail, Context, Result};
 use clap::{Args, Subcommand};
 use depthmesh::mesh::io::write_mesh;
+use depthmesh::track::TrackerConfig;
 use depthmesh::tsdf::regions::Regions;
+use depthmesh_cluster::tracker::TrackerOptions;
 use depthmesh_cluster::worker::WorkerOptions;
 use depthmesh_cluster::{Site, SiteConfig};
 use std::path::PathBuf;
@@ -26,6 +28,9 @@ pub enum ClusterCommand {
     Status(SiteArgs),
     /// Fuse the site's whole stream in this process, in the stream's order.
     Replay(ReplayArgs),
+    /// Track a sensor that publishes frames without poses, and publish
+    /// them with the poses found for the workers.
+    Tracker(TrackerArgs),
 }
 
 /// Which site, on which bus.
@@ -116,6 +121,19 @@ pub struct WorkerArgs {
     pub checkpoint_every: u64,
 }
 
+/// Flags of `cluster tracker`.
+#[derive(Args, Debug, Clone)]
+pub struct TrackerArgs {
+    #[command(flatten)]
+    pub site: SiteArgs,
+    /// Track only this sensor (default: any sensor that needs a tracker).
+    #[arg(long)]
+    pub sensor: Option<String>,
+    /// This tracker's name on the site (default: host, process and time).
+    #[arg(long)]
+    pub name: Option<String>,
+}
+
 /// Flags of `cluster fetch`.
 #[derive(Args, Debug, Clone)]
 pub struct FetchArgs {
@@ -158,6 +176,7 @@ pub fn run(command: &ClusterCommand, quiet: bool) -> Result<()> {
                 Ok(())
             }
             ClusterCommand::Replay(args) => replay(args, quiet).await,
+            ClusterCommand::Tracker(args) => tracker(args).await,
         }
     })
 }
@@ -168,27 +187,55 @@ async fn worker(args: &WorkerArgs) -> Result<()> {
     }
     let site = args.site.connect().await?;
     site.settle_config(&args.map.config()).await?;
-    let id = args.name.clone().unwrap_or_else(default_name);
+    let options = WorkerOptions {
+        id: name(&args.name)?,
+        checkpoint_every: args.checkpoint_every,
+    };
+    depthmesh_cluster::worker::run(&site, &options, &stop_on_signal()).await?;
+    Ok(())
+}
+
+async fn tracker(args: &TrackerArgs) -> Result<()> {
+    let site = args.site.connect().await?;
+    let options = TrackerOptions {
+        id: name(&args.name)?,
+        sensor: args.sensor.clone(),
+        tracking: TrackerConfig::default(),
+    };
+    depthmesh_cluster::tracker::run(&site, &options, &stop_on_signal()).await?;
+    Ok(())
+}
+
+/// The `--name` given, checked, or a generated one.
+fn name(given: &Option<String>) -> Result<String> {
+    let id = given.clone().unwrap_or_else(default_name);
     if !depthmesh_server::protocol::valid_session_name(&id) {
         bail!("--name {id:?}: 1 to 64 letters, digits, '-' or '_'");
     }
+    Ok(id)
+}
+
+/// A flag set by Ctrl-C or SIGTERM: a worker then checkpoints and hands its
+/// shards over instead of leaving them to expire.
+fn stop_on_signal() -> Arc<AtomicBool> {
     let stop = Arc::new(AtomicBool::new(false));
     let flag = stop.clone();
     tokio::spawn(async move {
-        let mut term =
-            tokio::signal::unix::signal(tokio::signal::unix::SignalKind::terminate()).ok();
-        tokio::select! {
-            _ = tokio::signal::ctrl_c() => {}
-            _ = async { match term.as_mut() { Some(t) => { t.recv().await; } None => std::future::pending().await } } => {}
+        let term = tokio::signal::unix::signal(tokio::signal::unix::SignalKind::terminate());
+        match term {
+            Ok(mut term) => {
+                tokio::select! {
+                    _ = tokio::signal::ctrl_c() => {}
+                    _ = term.recv() => {}
+                }
+            }
+            Err(_) => {
+                let _ = tokio::signal::ctrl_c().await;
+            }
         }
         flag.store(true, Ordering::Relaxed);
     });
-    let options = WorkerOptions {
-        id,
-        checkpoint_every: args.checkpoint_every,
-    };
-    depthmesh_cluster::worker::run(&site, &options, &stop).await?;
-    Ok(())
+    stop
 }
 
 /// A worker name unique enough on one site: host, process id and start time.

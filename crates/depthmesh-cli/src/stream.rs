@@ -57,7 +57,8 @@ pub struct StreamArgs {
     /// server maps the newest frame and drops what it cannot keep up with.
     #[arg(long)]
     pub realtime: bool,
-    /// Let the server estimate poses by ICP (only the first frame's pose is sent).
+    /// Leave the poses to ICP (only the first frame's pose is sent): the
+    /// server's, or with --nats a `cluster tracker`'s.
     #[arg(long)]
     pub track: bool,
     /// Continue the --session of this name from the server's store of it
@@ -188,8 +189,8 @@ fn publish(
     rate: Option<f64>,
     quiet: bool,
 ) -> Result<()> {
-    if args.realtime || args.track || args.resume || args.status_every > 0 || args.save_status {
-        bail!("--nats publishes every frame with its pose, if known: --realtime, --track, --resume, --status-every and --save-status are for a server");
+    if args.realtime || args.resume || args.status_every > 0 || args.save_status {
+        bail!("--nats publishes every frame: --realtime, --resume, --status-every and --save-status are for a server");
     }
     let (Some(site), Some(sensor)) = (&args.site, &args.sensor) else {
         bail!("--nats needs --site and --sensor");
@@ -198,6 +199,7 @@ fn publish(
         sensor: sensor.clone(),
         codec: args.codec,
         rate,
+        track: args.track,
     };
     let bar = progress::bar(source.len() as u64, "publish", quiet);
     let runtime = tokio::runtime::Runtime::new().context("cannot start the client's runtime")?;

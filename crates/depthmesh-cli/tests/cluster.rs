@@ -3,8 +3,10 @@
 //! scene; one worker is killed with SIGKILL halfway, and the map fetched
 //! from the shards' checkpoints equals a single-process replay of the
 //! stream, every frame fused once. With the sensors' frames in folder
-//! order, the cluster's map equals `reconstruct`'s. Needs `nats-server`,
-//! so it is ignored by default; `.ci/cluster` installs it and runs it.
+//! order, the cluster's map equals `reconstruct`'s; a sensor without poses
+//! is tracked by a tracker worker, killed halfway too, and the map equals
+//! `reconstruct --track`'s. Needs `nats-server`, so it is ignored by
+//! default; `.ci/cluster` installs it and runs it.
 
 mod common;
 
@@ -114,16 +116,22 @@ fn a_worker_killed_halfway_loses_no_frame_and_fuses_none_twice() {
         spawn(&args, &dir.join(format!("{sensor}.log")))
     };
     let (a, b) = (publish("a", "0..30"), publish("b", "30..60"));
-    // Halfway through the two seconds of frames, once w2 holds shards.
     std::thread::sleep(Duration::from_millis(1000));
-    let before = status(url, "kill");
-    let held = before["workers"]
-        .as_array()
-        .unwrap()
-        .iter()
-        .find(|w| w["id"] == "w2")
-        .map_or(0, |w| w["shards"].as_array().unwrap().len());
-    assert!(held > 0, "w2 owned no shard when killed: {before}");
+    // Halfway through the two seconds of frames, once w2 holds shards.
+    let deadline = Instant::now() + Duration::from_secs(20);
+    loop {
+        let s = status(url, "kill");
+        let held = s["shards"]
+            .as_array()
+            .unwrap()
+            .iter()
+            .filter(|s| s["owner"] == "w2");
+        if held.count() > 0 {
+            break;
+        }
+        assert!(Instant::now() < deadline, "w2 never owned a shard: {s}");
+        std::thread::sleep(Duration::from_millis(50));
+    }
     drop(w2);
     assert!(finish(a, Duration::from_secs(60)).success());
     assert!(finish(b, Duration::from_secs(60)).success());
@@ -238,4 +246,97 @@ fn sensors_published_in_folder_order_give_the_map_reconstruct_makes() {
         alone.len()
     );
     drop(workers);
+}
+
+#[test]
+#[ignore = "needs nats-server: run by .ci/cluster"]
+fn a_sensor_without_poses_is_tracked_once_even_when_its_tracker_dies() {
+    let dir = scratch("cluster-track");
+    let frames = dir.join("frames");
+    std::fs::create_dir_all(&frames).unwrap();
+    simulated_frames_folder(&frames, 40);
+    let nats = NatsServer::start(&dir);
+    let url = nats.url.as_str();
+    let f = frames.to_str().unwrap();
+    let site = ["--nats", url, "--site", "track"];
+    let mut args = vec![
+        "cluster",
+        "worker",
+        "--name",
+        "w1",
+        "--lease-seconds",
+        "1.5",
+    ];
+    args.extend(site);
+    let worker = spawn(&args, &dir.join("w1.log"));
+    let tracker = |name: &str| {
+        let mut args = vec!["cluster", "tracker", "--name", name];
+        args.extend(site);
+        spawn(&args, &dir.join(format!("{name}.log")))
+    };
+    let mut trackers = vec![("t1", tracker("t1")), ("t2", tracker("t2"))];
+    let mut args = vec!["stream", f, "--track", "--sensor", "a", "--rate", "15"];
+    args.extend(site);
+    let publisher = spawn(&args, &dir.join("a.log"));
+    // Kill whichever tracker holds the sensor once it has published some frames.
+    let deadline = Instant::now() + Duration::from_secs(30);
+    let killed = loop {
+        assert!(Instant::now() < deadline, "no tracker published frames");
+        let s = status(url, "track");
+        let busy = s["trackers"]
+            .as_array()
+            .unwrap()
+            .iter()
+            .find(|t| t["sensor"] == "a" && t["published"].as_u64().unwrap_or(0) >= 10);
+        if let Some(t) = busy {
+            break t["id"].as_str().unwrap().to_string();
+        }
+        std::thread::sleep(Duration::from_millis(100));
+    };
+    trackers.retain(|(name, _)| *name != killed);
+    assert!(finish(publisher, Duration::from_secs(60)).success());
+    let fetched = dir.join("fetched.ply");
+    let report = json(&depthmesh(&[
+        "cluster",
+        "fetch",
+        "--nats",
+        url,
+        "--site",
+        "track",
+        "--wait",
+        "--timeout",
+        "60",
+        "-o",
+        fetched.to_str().unwrap(),
+    ]));
+    let survivor = std::fs::read_to_string(dir.join(format!("{}.log", trackers[0].0))).unwrap();
+    assert!(
+        survivor.contains("tracking sensor a (frames up to Some("),
+        "{survivor}"
+    );
+    let out = dir.join("reconstructed");
+    ok(&depthmesh(&[
+        "reconstruct",
+        f,
+        "--track",
+        "--out",
+        out.to_str().unwrap(),
+        "--quiet",
+    ]));
+    let alone = common::summary(&out);
+    assert_eq!(report["every_frame_fused_once"], true, "{report}");
+    assert_eq!(report["frames_lost"], alone["lost_frames"], "{report}");
+    assert_eq!(
+        report["frames_in_stream"].as_u64().unwrap() + report["frames_lost"].as_u64().unwrap(),
+        40
+    );
+    let (cluster, alone) = (triangles(&fetched), triangles(&out.join("mesh.ply")));
+    assert!(alone.len() > 5_000, "{}", alone.len());
+    assert!(
+        cluster == alone,
+        "{} against {} triangles",
+        cluster.len(),
+        alone.len()
+    );
+    drop((worker, trackers));
 }

@@ -6,6 +6,7 @@ use crate::checkpoint::{load_blocks, read_manifest, Manifest};
 use crate::error::{ClusterError, Result};
 use crate::fuse::{Fused, Fuser, StreamReader};
 use crate::site::Site;
+use crate::tracker::tracked;
 use depthmesh::mesh::Mesh;
 use futures_util::TryStreamExt;
 use serde::Serialize;
@@ -46,6 +47,18 @@ pub async fn frames_by_sensor(site: &Site) -> Result<BTreeMap<String, SensorFram
     Ok(out)
 }
 
+/// Frames of sensors without poses not tracked yet.
+async fn untracked_frames(site: &Site) -> Result<u64> {
+    let mut waiting = 0;
+    for (sensor, frames) in frames_by_sensor(site).await? {
+        if frames.raw > 0 {
+            let done = tracked(site, &sensor).await?.map_or(0, |t| t.frames);
+            waiting += frames.raw.saturating_sub(done);
+        }
+    }
+    Ok(waiting)
+}
+
 /// What an assembled map includes.
 #[derive(Clone, Debug, Default, Serialize)]
 pub struct FetchReport {
@@ -69,6 +82,9 @@ pub struct FetchReport {
     pub every_frame_fused_once: bool,
     /// Frames no shard could read.
     pub frames_rejected: u64,
+    /// Frames of sensors without poses that their tracker lost (never
+    /// published with a pose, so never fused).
+    pub frames_lost: u64,
     /// Blocks in the map.
     pub blocks: u64,
     /// Bytes of checkpoint segments read.
@@ -105,11 +121,15 @@ pub async fn fetch(site: &Site, wait: Option<Duration>) -> Result<(Mesh, FetchRe
     };
     let shards = config.regions.shards;
     let (all, last) = loop {
+        // Trackers first: the frames they still have to publish come
+        // after the last message read next.
+        let untracked = untracked_frames(site).await?;
         let last = site.last_seq().await?;
         let all = manifests(site, shards).await?;
-        let caught_up = all
-            .iter()
-            .all(|m| m.as_ref().is_some_and(|m| m.seq >= last));
+        let caught_up = untracked == 0
+            && all
+                .iter()
+                .all(|m| m.as_ref().is_some_and(|m| m.seq >= last));
         match wait {
             Some(limit) if !caught_up => {
                 if start.elapsed() > limit {
@@ -130,16 +150,20 @@ pub async fn fetch(site: &Site, wait: Option<Duration>) -> Result<(Mesh, FetchRe
             _ => break (all, last),
         }
     };
-    let posed: u64 = frames_by_sensor(site)
-        .await?
-        .values()
-        .map(|f| f.posed)
-        .sum();
+    let sensors = frames_by_sensor(site).await?;
+    let posed: u64 = sensors.values().map(|f| f.posed).sum();
+    let mut lost = 0;
+    for (sensor, frames) in &sensors {
+        if frames.raw > 0 {
+            lost += tracked(site, sensor).await?.map_or(0, |t| t.lost);
+        }
+    }
     let mut fuser = Fuser::new(config)?;
     let mut report = FetchReport {
         stream_last: last,
         shards,
         frames_in_stream: posed,
+        frames_lost: lost,
         frames_fused_min: u64::MAX,
         ..FetchReport::default()
     };

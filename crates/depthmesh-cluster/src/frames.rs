@@ -23,10 +23,12 @@ pub struct FrameReader {
 pub struct ReadFrame<'a> {
     /// The sensor's frame number.
     pub index: u64,
-    /// Where it was taken from.
-    pub pose: Pose,
+    /// Its timestamp, seconds.
+    pub timestamp: f64,
+    /// Where it was taken from, when known.
+    pub pose: Option<Pose>,
     /// Its depth in metres, outside the site's range set to 0.
-    pub depth: &'a DepthImage,
+    pub depth: &'a mut DepthImage,
     /// The sensor's camera.
     pub camera: Intrinsics,
 }
@@ -44,9 +46,9 @@ impl FrameReader {
         Ok(k)
     }
 
-    /// Reads a posed frame message taken with `camera`; depth outside
-    /// `range` (metres) is dropped as the dataset readers drop it. A
-    /// message that is not one is an error saying why (the caller skips it).
+    /// Reads a frame message taken with `camera`; depth outside `range`
+    /// (metres) is dropped as the dataset readers drop it. A message that
+    /// is not one is an error saying why (the caller skips it).
     pub fn read(
         &mut self,
         payload: &[u8],
@@ -54,9 +56,6 @@ impl FrameReader {
         range: (f32, f32),
     ) -> Result<ReadFrame<'_>, String> {
         let msg = FrameMessage::decode(payload).map_err(|e| e.to_string())?;
-        let pose = msg
-            .pose
-            .ok_or("a frame on a posed subject without a pose")?;
         let pixels = u64::from(camera.width) * u64::from(camera.height);
         let decoder = match self.decoders.iter_mut().position(|(c, _)| *c == msg.codec) {
             Some(i) => &mut self.decoders[i].1,
@@ -83,8 +82,9 @@ impl FrameReader {
         self.depth.clamp_range(range.0, range.1);
         Ok(ReadFrame {
             index: msg.index,
-            pose,
-            depth: &self.depth,
+            timestamp: msg.timestamp,
+            pose: msg.pose,
+            depth: &mut self.depth,
             camera,
         })
     }

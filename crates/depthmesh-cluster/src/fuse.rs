@@ -130,8 +130,12 @@ impl Fuser {
                 Ok(f) => f,
                 Err(why) => return Ok(Fused::Rejected(format!("{sensor}: {why}"))),
             };
+            let Some(pose) = frame.pose else {
+                let why = format!("{sensor}: frame {} has no pose", frame.index);
+                return Ok(Fused::Rejected(why));
+            };
             let decoded = Instant::now();
-            volume.integrate_where(frame.depth, None, &frame.camera, &frame.pose, keep)?;
+            volume.integrate_where(frame.depth, None, &frame.camera, &pose, keep)?;
             times.decode += decoded.duration_since(start).as_secs_f64();
             times.integrate += decoded.elapsed().as_secs_f64();
             Ok(Fused::Frame)

@@ -5,6 +5,8 @@
 //! shards with the stream position they include into an object store, and
 //! take over a dead worker's shards from its last checkpoint, replaying the
 //! frames after it, so that no frame is lost and none is fused twice.
+//! Sensors without poses are tracked once each, by a tracker worker that
+//! publishes their frames again with the poses it found.
 //!
 //! Everything distributed is JetStream's: the stream orders and keeps the
 //! frames, leases expire with the bucket's age limit, checkpoints are
@@ -21,6 +23,7 @@ pub mod fuse;
 pub mod publish;
 pub mod site;
 pub mod status;
+pub mod tracker;
 pub mod worker;
 
 pub use error::{ClusterError, Result};

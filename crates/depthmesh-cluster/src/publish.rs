@@ -25,6 +25,9 @@ pub struct PublishOptions {
     pub codec: Codec,
     /// Frames per second, or `None`: as fast as the bus takes them.
     pub rate: Option<f64>,
+    /// Leave the poses to a tracker: every frame goes to the raw subject,
+    /// the first with its pose (where the tracked trajectory starts).
+    pub track: bool,
 }
 
 /// What a publication did.
@@ -64,27 +67,28 @@ pub async fn publish(
             let due = start + Duration::from_secs_f64(sent as f64 / rate);
             tokio::time::sleep_until(due.into()).await;
         }
+        let pose = frame.pose.filter(|_| !options.track || sent == 0);
         let mut msg = FrameMessage {
             index: frame.index,
             timestamp: frame.timestamp,
-            pose: frame.pose,
+            pose,
             codec: options.codec,
             payload: Vec::new(),
         };
         encoder.encode(&raw, &mut msg.payload);
         let mut bytes = Vec::with_capacity(msg.payload.len() + 80);
         msg.encode(&mut bytes);
-        let subject = match frame.pose {
-            Some(_) => site.posed_subject(&options.sensor),
-            None => site.raw_subject(&options.sensor),
+        let subject = match pose {
+            Some(_) if !options.track => site.posed_subject(&options.sensor),
+            _ => site.raw_subject(&options.sensor),
         };
         let mut headers = HeaderMap::new();
         headers.insert(
             "Nats-Msg-Id",
-            format!("{}-{}", options.sensor, frame.index).as_str(),
+            Site::frame_id(&subject, frame.index).as_str(),
         );
         out.bytes += bytes.len() as u64;
-        out.posed += u64::from(frame.pose.is_some());
+        out.posed += u64::from(subject.contains(".posed."));
         let ack = site
             .js
             .publish_with_headers(subject, headers, bytes.into())

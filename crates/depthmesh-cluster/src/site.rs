@@ -181,6 +181,24 @@ impl Site {
         })
     }
 
+    /// Reads the site's lease time again: a worker started with
+    /// `--lease-seconds` may have changed it since this process connected.
+    pub async fn refresh_lease(&mut self) -> Result<()> {
+        // The bucket's own status is what it was when opened: ask its stream.
+        let info = self
+            .js
+            .get_stream(format!("KV_{}", self.leases.name))
+            .await
+            .map_err(|e| ClusterError::bus("cannot read the lease time", e))?
+            .get_info()
+            .await
+            .map_err(|e| ClusterError::bus("cannot read the lease time", e))?;
+        if info.config.max_age > Duration::ZERO {
+            self.lease_ttl = info.config.max_age;
+        }
+        Ok(())
+    }
+
     /// The subject of posed frames from `sensor`.
     pub fn posed_subject(&self, sensor: &str) -> String {
         format!("dm.{}.posed.{sensor}", self.name)
@@ -189,6 +207,14 @@ impl Site {
     /// The subject of frames without poses from `sensor`.
     pub fn raw_subject(&self, sensor: &str) -> String {
         format!("dm.{}.raw.{sensor}", self.name)
+    }
+
+    /// The message id of frame `index` on `subject`: the stream keeps one
+    /// message per id (within its duplicate window), so a frame published
+    /// again, by a restarted client or by two trackers in a race, is kept
+    /// once. The subject is part of it: a frame's posed copy is another message.
+    pub fn frame_id(subject: &str, index: u64) -> String {
+        format!("{subject}#{index}")
     }
 
     /// The sensor a subject of this site names, and whether its frames are posed.

@@ -5,6 +5,7 @@ use crate::checkpoint::{read_manifest, shard_key};
 use crate::error::{ClusterError, Result};
 use crate::fetch::{frames_by_sensor, SensorFrames};
 use crate::site::Site;
+use crate::tracker::TrackerBeat;
 use crate::worker::Heartbeat;
 use async_nats::jetstream::consumer::{pull, DeliverPolicy};
 use futures_util::TryStreamExt;
@@ -46,8 +47,10 @@ pub struct Status {
     pub site: String,
     /// The stream's last message.
     pub stream_last: u64,
-    /// Live workers.
+    /// Live fusion workers.
     pub workers: Vec<Heartbeat>,
+    /// Live trackers.
+    pub trackers: Vec<TrackerBeat>,
     /// Frames per second, summed over the workers.
     pub frames_per_second: f64,
     /// Every shard.
@@ -62,7 +65,7 @@ pub struct Status {
 pub async fn status(site: &Site) -> Result<Status> {
     let config = site.required_config().await?;
     let stream_last = site.last_seq().await?;
-    let workers = heartbeats(site).await?;
+    let (workers, trackers) = heartbeats(site).await?;
     let mut shards = Vec::new();
     for s in 0..config.regions.shards {
         let owner = site
@@ -100,14 +103,15 @@ pub async fn status(site: &Site) -> Result<Status> {
         stream_last,
         frames_per_second: workers.iter().map(|w| w.frames_per_second).sum(),
         workers,
+        trackers,
         shards,
         sensors,
         lag: (stream_last + 1).saturating_sub(behind),
     })
 }
 
-/// The live workers' last heartbeats.
-async fn heartbeats(site: &Site) -> Result<Vec<Heartbeat>> {
+/// The live fusion workers' and trackers' last heartbeats.
+async fn heartbeats(site: &Site) -> Result<(Vec<Heartbeat>, Vec<TrackerBeat>)> {
     let keys: Vec<String> = site
         .workers
         .keys()
@@ -116,7 +120,7 @@ async fn heartbeats(site: &Site) -> Result<Vec<Heartbeat>> {
         .try_collect()
         .await
         .map_err(|e| ClusterError::bus("cannot list the workers", e))?;
-    let mut out = Vec::new();
+    let (mut out, mut trackers) = (Vec::new(), Vec::new());
     for key in keys {
         let Some(bytes) = site
             .workers
@@ -126,12 +130,15 @@ async fn heartbeats(site: &Site) -> Result<Vec<Heartbeat>> {
         else {
             continue;
         };
-        if let Ok(beat) = serde_json::from_slice::<Heartbeat>(&bytes) {
-            out.push(beat);
+        if key.starts_with("tracker.") {
+            trackers.extend(serde_json::from_slice::<TrackerBeat>(&bytes));
+        } else {
+            out.extend(serde_json::from_slice::<Heartbeat>(&bytes));
         }
     }
     out.sort_by(|a, b| a.id.cmp(&b.id));
-    Ok(out)
+    trackers.sort_by(|a, b| a.id.cmp(&b.id));
+    Ok((out, trackers))
 }
 
 /// Messages on `subject` from position `from` on.

@@ -95,7 +95,7 @@ impl Owned {
 
 /// The worker's state between messages.
 struct Worker<'a> {
-    site: &'a Site,
+    site: Site,
     options: &'a WorkerOptions,
     regions: Regions,
     fuser: Fuser,
@@ -113,7 +113,7 @@ struct Worker<'a> {
 pub async fn run(site: &Site, options: &WorkerOptions, stop: &AtomicBool) -> Result<()> {
     let config = site.required_config().await?;
     let mut w = Worker {
-        site,
+        site: site.clone(),
         options,
         regions: config.regions,
         fuser: Fuser::new(config)?,
@@ -126,12 +126,12 @@ pub async fn run(site: &Site, options: &WorkerOptions, stop: &AtomicBool) -> Res
     };
     let mut reader = StreamReader::new(site);
     let mut last = site.last_seq().await?;
-    let beat_every = site.lease_ttl / 4;
     let mut next_beat = Instant::now();
     while !stop.load(Ordering::Relaxed) {
+        let beat_every = w.site.lease_ttl / 4;
         if Instant::now() >= next_beat {
             w.heartbeat().await?;
-            next_beat = Instant::now() + beat_every;
+            next_beat = Instant::now() + w.site.lease_ttl / 4;
         }
         let Some(at) = w.owned.iter().map(|o| o.next).min() else {
             tokio::time::sleep(beat_every.min(Duration::from_millis(200))).await;
@@ -165,7 +165,7 @@ impl Worker<'_> {
         let regions = self.regions;
         let keep = |k: IVec3| members[regions.shard_of(k) as usize];
         let fused = match &msg {
-            Some(m) => self.fuser.fuse(self.site, m, keep).await?,
+            Some(m) => self.fuser.fuse(&self.site, m, keep).await?,
             None => Fused::Skipped,
         };
         if let Fused::Rejected(why) = &fused {
@@ -246,7 +246,7 @@ impl Worker<'_> {
         });
         let seq = o.next - 1;
         let name = format!("shard-{shard}/{seq:012}-{}", self.options.id);
-        write_segment(self.site, &name, &bytes).await?;
+        write_segment(&self.site, &name, &bytes).await?;
         let mut manifest = Manifest {
             seq,
             frames: o.frames,
@@ -265,7 +265,7 @@ impl Worker<'_> {
         if !full {
             manifest.segment_bytes += o.manifest.segment_bytes;
         }
-        match commit(self.site, shard, &manifest, o.manifest_revision).await? {
+        match commit(&self.site, shard, &manifest, o.manifest_revision).await? {
             Some(revision) => {
                 let o = &mut self.owned[i];
                 let old = std::mem::replace(&mut o.manifest, manifest);
@@ -300,13 +300,30 @@ impl Worker<'_> {
 
     /// Renews leases, says this worker is alive, balances shards.
     async fn heartbeat(&mut self) -> Result<()> {
+        self.site.refresh_lease().await?;
         self.renew().await?;
         let now = Instant::now();
         let seconds = now.duration_since(self.beat_at).as_secs_f64().max(1e-3);
+        let frames_per_second = (self.frames - self.frames_at_beat) as f64 / seconds;
+        self.frames_at_beat = self.frames;
+        self.beat_at = now;
+        // Said before balancing, so a new worker counts itself among the
+        // live ones; said again after, so the status shows its new shards.
+        self.say_alive(frames_per_second).await?;
+        let before: Vec<u32> = self.owned.iter().map(|o| o.shard).collect();
+        self.balance().await?;
+        if self.owned.iter().map(|o| o.shard).ne(before) {
+            self.say_alive(frames_per_second).await?;
+        }
+        Ok(())
+    }
+
+    /// Puts this worker's heartbeat.
+    async fn say_alive(&self, frames_per_second: f64) -> Result<()> {
         let beat = Heartbeat {
             id: self.options.id.clone(),
             shards: self.owned.iter().map(|o| (o.shard, o.next)).collect(),
-            frames_per_second: (self.frames - self.frames_at_beat) as f64 / seconds,
+            frames_per_second,
             frames: self.frames,
             checkpoints: self.checkpoints,
             fuse_seconds: self.fuser.times,
@@ -315,15 +332,13 @@ impl Worker<'_> {
                 .duration_since(UNIX_EPOCH)
                 .map_or(0.0, |d| d.as_secs_f64()),
         };
-        self.frames_at_beat = self.frames;
-        self.beat_at = now;
         let bytes = serde_json::to_vec(&beat).expect("heartbeat serialises");
         self.site
             .workers
             .put(&self.options.id, bytes.into())
             .await
-            .map_err(|e| ClusterError::bus("cannot send a heartbeat", e))?;
-        self.balance().await
+            .map(|_| ())
+            .map_err(|e| ClusterError::bus("cannot send a heartbeat", e))
     }
 
     /// Renews every lease; gives up a shard whose lease is gone or
@@ -389,7 +404,7 @@ impl Worker<'_> {
         Ok(())
     }
 
-    /// Workers whose heartbeats have not expired.
+    /// Fusion workers whose heartbeats have not expired.
     async fn live_workers(&self) -> Result<u32> {
         let keys = self
             .site
@@ -401,16 +416,16 @@ impl Worker<'_> {
             .try_collect()
             .await
             .map_err(|e| ClusterError::bus("cannot list the workers", e))?;
-        Ok(keys.len() as u32)
+        Ok(keys.iter().filter(|k| !k.starts_with("tracker.")).count() as u32)
     }
 
     /// Loads `shard` from its last checkpoint, now that its lease is ours.
     async fn take(&mut self, shard: u32, lease_revision: u64) -> Result<()> {
-        let (manifest, manifest_revision) = match read_manifest(self.site, shard).await? {
+        let (manifest, manifest_revision) = match read_manifest(&self.site, shard).await? {
             Some((m, r)) => (m, Some(r)),
             None => (Manifest::default(), None),
         };
-        let blocks = load_blocks(self.site, shard, &manifest).await?;
+        let blocks = load_blocks(&self.site, shard, &manifest).await?;
         self.fuser
             .volume
             .restore(blocks.into_values().collect(), 0)?;

@@ -1,0 +1,327 @@
+//! A tracker worker (`depthmesh cluster tracker`): for a sensor that
+//! publishes frames without poses, tracks them (the library's session:
+//! ICP against its own TSDF of the sensor's frames) and publishes each
+//! tracked frame, unchanged but for its pose, on the sensor's posed
+//! subject for the fusion workers. A lost frame is not published.
+//!
+//! Each sensor has one tracker at a time, by a lease as shards have. A
+//! tracker that takes a sensor over tracks it again from its first frame
+//! (tracking is deterministic, so it finds the poses its predecessor
+//! found) and publishes only the frames after the last one on the posed
+//! subject; the frames' message ids make the stream keep a frame published
+//! twice in a race once.
+
+use crate::error::{ClusterError, Result};
+use crate::fetch::frames_by_sensor;
+use crate::frames::FrameReader;
+use crate::site::Site;
+use async_nats::jetstream::kv;
+use async_nats::jetstream::stream::RawMessageErrorKind;
+use async_nats::HeaderMap;
+use depthmesh::session::{MapConfig, Session, SessionConfig, TsdfSettings};
+use depthmesh::track::TrackerConfig;
+use depthmesh::Frame;
+use depthmesh_server::protocol::FrameMessage;
+use serde::{Deserialize, Serialize};
+use std::sync::atomic::{AtomicBool, Ordering};
+use std::time::{Duration, Instant, SystemTime, UNIX_EPOCH};
+
+/// How a tracker runs.
+#[derive(Clone, Debug)]
+pub struct TrackerOptions {
+    /// Its name, unique on the site.
+    pub id: String,
+    /// Track only this sensor (default: any sensor without a tracker).
+    pub sensor: Option<String>,
+    /// The tracker's settings.
+    pub tracking: TrackerConfig,
+}
+
+/// A tracker's figures, as its heartbeat says them.
+#[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
+pub struct TrackerBeat {
+    /// The tracker.
+    pub id: String,
+    /// The sensor it tracks, if any.
+    pub sensor: Option<String>,
+    /// Frames tracked (again, after a takeover, from the first).
+    pub frames: u64,
+    /// Frames lost (not published).
+    pub lost: u64,
+    /// Frames published with their pose.
+    pub published: u64,
+    /// Seconds since the Unix epoch when it was sent.
+    pub at: f64,
+}
+
+/// The key of a tracker's heartbeat in the `workers` bucket.
+pub fn beat_key(id: &str) -> String {
+    format!("tracker.{id}")
+}
+
+/// How far a sensor's frames are tracked: in the `meta` bucket under
+/// `tracked.SENSOR`, written whenever its tracker has caught up, so that
+/// `fetch --wait` knows frames still waiting for a pose.
+#[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
+pub struct Tracked {
+    /// The sensor's frames tracked (from its first).
+    pub frames: u64,
+    /// Of those, lost (never published with a pose).
+    pub lost: u64,
+}
+
+/// The key of a sensor's [`Tracked`] in the `meta` bucket.
+pub fn tracked_key(sensor: &str) -> String {
+    format!("tracked.{sensor}")
+}
+
+/// How far `sensor`'s frames are tracked, if a tracker has said.
+pub async fn tracked(site: &Site, sensor: &str) -> Result<Option<Tracked>> {
+    let bytes = site
+        .meta
+        .get(tracked_key(sensor))
+        .await
+        .map_err(|e| ClusterError::bus("cannot read a tracker's progress", e))?;
+    Ok(bytes.and_then(|b| serde_json::from_slice(&b).ok()))
+}
+
+/// The key of a sensor's tracker lease in the `leases` bucket.
+fn lease_key(sensor: &str) -> String {
+    format!("tracker.{sensor}")
+}
+
+/// A sensor being tracked.
+struct Tracking {
+    sensor: String,
+    lease_revision: u64,
+    renewed: Instant,
+    session: Session,
+    /// Depths kept, metres (the site's range).
+    range: (f32, f32),
+    /// The stream position to look for the sensor's next frame from.
+    next: u64,
+    /// The last frame index already on the posed subject.
+    published_up_to: Option<u64>,
+    /// Frames tracked and lost, and what was last said of them.
+    progress: Tracked,
+    said: Option<Tracked>,
+}
+
+/// Runs a tracker until `stop` is set; then gives its sensor back.
+pub async fn run(site: &Site, options: &TrackerOptions, stop: &AtomicBool) -> Result<()> {
+    let mut site = site.clone();
+    let site = &mut site;
+    let mut reader = FrameReader::default();
+    let mut beat = TrackerBeat {
+        id: options.id.clone(),
+        ..TrackerBeat::default()
+    };
+    let mut tracking: Option<Tracking> = None;
+    let mut next_beat = Instant::now();
+    while !stop.load(Ordering::Relaxed) {
+        if Instant::now() >= next_beat {
+            site.refresh_lease().await?;
+            next_beat = Instant::now() + site.lease_ttl / 4;
+            if let Some(t) = &mut tracking {
+                if !renew(site, t).await? {
+                    eprintln!("tracker {}: lease of sensor {} lost", options.id, t.sensor);
+                    tracking = None;
+                }
+            }
+            if tracking.is_none() {
+                tracking = claim(site, options).await?;
+            }
+            beat.sensor = tracking.as_ref().map(|t| t.sensor.clone());
+            beat.at = SystemTime::now()
+                .duration_since(UNIX_EPOCH)
+                .map_or(0.0, |d| d.as_secs_f64());
+            let bytes = serde_json::to_vec(&beat).expect("heartbeat serialises");
+            site.workers
+                .put(beat_key(&options.id), bytes.into())
+                .await
+                .map_err(|e| ClusterError::bus("cannot send a heartbeat", e))?;
+        }
+        let Some(t) = &mut tracking else {
+            // Look for work again soon, not only at the next heartbeat.
+            tokio::time::sleep(Duration::from_millis(200)).await;
+            tracking = claim(site, options).await?;
+            continue;
+        };
+        if !step(site, t, &mut reader, &mut beat).await? {
+            if t.said.as_ref() != Some(&t.progress) {
+                let bytes = serde_json::to_vec(&t.progress).expect("progress serialises");
+                site.meta
+                    .put(tracked_key(&t.sensor), bytes.into())
+                    .await
+                    .map_err(|e| ClusterError::bus("cannot record a tracker's progress", e))?;
+                t.said = Some(t.progress.clone());
+            }
+            tokio::time::sleep(Duration::from_millis(20)).await;
+        }
+    }
+    if let Some(t) = tracking {
+        let _ = site
+            .leases
+            .delete_expect_revision(lease_key(&t.sensor), Some(t.lease_revision))
+            .await;
+    }
+    let _ = site.workers.delete(beat_key(&options.id)).await;
+    Ok(())
+}
+
+/// Renews the lease; `false` when it is gone.
+async fn renew(site: &Site, t: &mut Tracking) -> Result<bool> {
+    let key = lease_key(&t.sensor);
+    match site
+        .leases
+        .update(&key, t.sensor.clone().into(), t.lease_revision)
+        .await
+    {
+        Ok(r) => {
+            t.lease_revision = r;
+            t.renewed = Instant::now();
+            Ok(true)
+        }
+        Err(e) if e.kind() == kv::UpdateErrorKind::WrongLastRevision => Ok(false),
+        Err(_) => Ok(t.renewed.elapsed() < site.lease_ttl),
+    }
+}
+
+/// Takes a sensor that publishes frames without poses and has no tracker.
+async fn claim(site: &Site, options: &TrackerOptions) -> Result<Option<Tracking>> {
+    let config = match site.config().await? {
+        Some(c) => c,
+        None => return Ok(None),
+    };
+    for (sensor, frames) in frames_by_sensor(site).await? {
+        if frames.raw == 0 || options.sensor.as_ref().is_some_and(|s| *s != sensor) {
+            continue;
+        }
+        let Ok(lease_revision) = site
+            .leases
+            .create(lease_key(&sensor), sensor.clone().into())
+            .await
+        else {
+            continue;
+        };
+        let camera = site.sensor(&sensor).await?.ok_or_else(|| {
+            ClusterError::site(&site.name, format!("sensor {sensor} published no camera"))
+        })?;
+        let session = Session::new(SessionConfig {
+            intrinsics: camera,
+            map: MapConfig::Tsdf(TsdfSettings {
+                config: config.tsdf(),
+                range: (config.depth_min, config.depth_max),
+                remesh_every: 0,
+                active_radius: None,
+            }),
+            tracking: Some(options.tracking.clone()),
+        })?;
+        let published_up_to = last_posed_index(site, &sensor).await?;
+        eprintln!(
+            "tracker {}: tracking sensor {sensor} (frames up to {published_up_to:?} already posed)",
+            options.id
+        );
+        return Ok(Some(Tracking {
+            sensor,
+            lease_revision,
+            renewed: Instant::now(),
+            session,
+            range: (config.depth_min, config.depth_max),
+            next: 1,
+            published_up_to,
+            progress: Tracked::default(),
+            said: None,
+        }));
+    }
+    Ok(None)
+}
+
+/// The index of the last frame on `sensor`'s posed subject.
+async fn last_posed_index(site: &Site, sensor: &str) -> Result<Option<u64>> {
+    match site
+        .stream
+        .get_last_raw_message_by_subject(&site.posed_subject(sensor))
+        .await
+    {
+        Ok(m) => FrameMessage::decode(&m.payload)
+            .map(|f| Some(f.index))
+            .map_err(|e| ClusterError::site(&site.name, format!("sensor {sensor}: {e}"))),
+        Err(e) if e.kind() == RawMessageErrorKind::NoMessageFound => Ok(None),
+        Err(e) => Err(ClusterError::bus("cannot read the last posed frame", e)),
+    }
+}
+
+/// Tracks the sensor's next frame and publishes it; `false` when there is
+/// none yet.
+async fn step(
+    site: &Site,
+    t: &mut Tracking,
+    reader: &mut FrameReader,
+    beat: &mut TrackerBeat,
+) -> Result<bool> {
+    let msg = match site
+        .stream
+        .raw_message_builder()
+        .sequence(t.next)
+        .next_by_subject(site.raw_subject(&t.sensor))
+        .send()
+        .await
+    {
+        Ok(m) => m,
+        Err(e) if e.kind() == RawMessageErrorKind::NoMessageFound => return Ok(false),
+        Err(e) => return Err(ClusterError::bus("cannot read the next frame", e)),
+    };
+    t.next = msg.sequence + 1;
+    let camera = reader.camera(site, &t.sensor).await?;
+    let range = t.range;
+    let tracked = tokio::task::block_in_place(|| -> Result<Option<(u64, depthmesh::Pose)>> {
+        let frame = match reader.read(&msg.payload, camera, range) {
+            Ok(f) => f,
+            Err(why) => {
+                eprintln!(
+                    "sensor {}: message {} skipped: {why}",
+                    t.sensor, msg.sequence
+                );
+                return Ok(None);
+            }
+        };
+        let index = frame.index;
+        let input = Frame {
+            index: index as usize,
+            timestamp: frame.timestamp,
+            depth: std::mem::take(frame.depth),
+            color: None,
+            pose: frame.pose,
+        };
+        let pose = t.session.push(&input).map(|o| o.record.pose);
+        *frame.depth = input.depth;
+        Ok(pose?.map(|p| (index, p)))
+    })?;
+    beat.frames += 1;
+    t.progress.frames += 1;
+    let Some((index, pose)) = tracked else {
+        beat.lost += 1;
+        t.progress.lost += 1;
+        return Ok(true);
+    };
+    if t.published_up_to.is_some_and(|p| index <= p) {
+        return Ok(true);
+    }
+    let mut out = FrameMessage::decode(&msg.payload).expect("read above");
+    out.pose = Some(pose);
+    let mut bytes = Vec::with_capacity(msg.payload.len() + 48);
+    out.encode(&mut bytes);
+    let mut headers = HeaderMap::new();
+    let subject = site.posed_subject(&t.sensor);
+    headers.insert("Nats-Msg-Id", Site::frame_id(&subject, index).as_str());
+    site.js
+        .publish_with_headers(subject, headers, bytes.into())
+        .await
+        .map_err(|e| ClusterError::bus(&format!("cannot publish frame {index}"), e))?
+        .await
+        .map_err(|e| ClusterError::bus(&format!("frame {index} was not stored"), e))?;
+    t.published_up_to = Some(index);
+    beat.published += 1;
+    Ok(true)
+}
