@@ -108,20 +108,30 @@ pa=$!
 publish "$site" b "$half..$frames" 30 > "$work/b.json" &
 pb=$!
 start=$(now)
-echo "lag while two sensors publish at 30 frames/s; w2 killed at $(python3 -c "print($half / 30 / 2)") s:"
+cat > "$work/lag.py" <<'PY'
+import json, sys
+s = json.load(sys.stdin)
+sensors = ", ".join(f"{k} {v['lag']}" for k, v in s["sensors"].items())
+workers = " ".join(f"{w['id']}:{len(w['shards'])}" for w in s["workers"])
+print(f"  {sys.argv[1]} s: stream {s['stream_last']}, lag {s['lag']} ({sensors}), "
+      f"shards {workers}, {s['frames_per_second']:.0f} frames/s")
+sys.exit(0 if s["lag"] == 0 and s["stream_last"] == int(sys.argv[2]) else 1)
+PY
+kill_at=$(python3 -c "print($half / 30 / 2)")
+echo "lag while two sensors publish at 30 frames/s; w2 killed at $kill_at s:"
 killed=0
-while kill -0 "$pa" 2> /dev/null || kill -0 "$pb" 2> /dev/null || ((killed < 2)); do
+# Until the sensors are done, w2 is killed and the lag is back to zero; at most two minutes.
+while (($(python3 -c "print(int($(now) - $start))") < 120)); do
   t=$(python3 -c "print(f'{$(now) - $start:.1f}')")
-  if ((killed == 0)) && python3 -c "import sys; sys.exit(0 if $t >= $half / 30 / 2 else 1)"; then
+  if ((killed == 0)) && python3 -c "import sys; sys.exit(0 if $t >= $kill_at else 1)"; then
     pkill -9 -f -- "--site $site --name w2 " || true
     killed=1
     echo "  $t s: w2 killed"
   fi
-  "$dm" cluster status --nats "$url" --site "$site" | python3 -c "
-import json, sys
-s = json.load(sys.stdin)
-print(f\"  {sys.argv[1]} s: stream {s['stream_last']}, lag {s['lag']} ({', '.join(f'{k} {v[\"lag\"]}' for k, v in s['sensors'].items())}), workers {' '.join(f\"{w['id']}:{len(w['shards'])}\" for w in s['workers'])}, {s['frames_per_second']:.0f} frames/s\")
-sys.exit(0 if s['lag'] == 0 and s['stream_last'] == $frames else 1)" "$t" && ((killed == 1)) && killed=2
+  if "$dm" cluster status --nats "$url" --site "$site" | python3 "$work/lag.py" "$t" "$frames" &&
+    ((killed == 1)) && ! kill -0 "$pa" 2> /dev/null && ! kill -0 "$pb" 2> /dev/null; then
+    break
+  fi
   sleep 0.5
 done
 "$dm" cluster fetch --nats "$url" --site "$site" --wait -o "$work/fetched.ply" > "$work/fetch.json"

@@ -2,6 +2,7 @@
 //! JetStream, and what a person asks of a site (its map, its status, a
 //! single-process replay of its stream).
 
+use crate::map_args::TsdfArgs;
 use crate::progress;
 use anyhow::{bail, Context, Result};
 use clap::{Args, Subcommand};
@@ -64,21 +65,8 @@ impl SiteArgs {
 /// The map's settings, which every worker of a site must share.
 #[derive(Args, Debug, Clone)]
 pub struct SiteMapArgs {
-    /// Voxel size in metres.
-    #[arg(long, default_value_t = 0.01, allow_negative_numbers = true)]
-    pub voxel: f32,
-    /// Truncation distance in metres (default 4 voxels).
-    #[arg(long, allow_negative_numbers = true)]
-    pub trunc: Option<f32>,
-    /// Mesh only voxels fused from at least this many frames.
-    #[arg(long, default_value_t = 1)]
-    pub min_weight: u16,
-    /// Nearer depths are dropped (metres).
-    #[arg(long, default_value_t = 0.1, allow_negative_numbers = true)]
-    pub depth_min: f32,
-    /// Farther depths are dropped (metres).
-    #[arg(long, default_value_t = 4.0, allow_negative_numbers = true)]
-    pub depth_max: f32,
+    #[command(flatten)]
+    pub tsdf: TsdfArgs,
     /// Blocks (8 voxels) along each side of a region.
     #[arg(long, default_value_t = Regions::new().region_blocks)]
     pub region_blocks: i32,
@@ -88,20 +76,21 @@ pub struct SiteMapArgs {
 }
 
 impl SiteMapArgs {
-    fn config(&self) -> SiteConfig {
-        let tsdf = depthmesh::tsdf::TsdfConfig::new(self.voxel);
-        SiteConfig {
-            voxel: self.voxel,
-            truncation: self.trunc.unwrap_or(tsdf.truncation),
+    fn config(&self) -> Result<SiteConfig> {
+        self.tsdf.check()?;
+        let tsdf = self.tsdf.config();
+        Ok(SiteConfig {
+            voxel: tsdf.voxel,
+            truncation: tsdf.truncation,
             max_weight: tsdf.max_weight,
-            min_weight: self.min_weight,
-            depth_min: self.depth_min,
-            depth_max: self.depth_max,
+            min_weight: tsdf.min_weight,
+            depth_min: self.tsdf.depth_min,
+            depth_max: self.tsdf.depth_max,
             regions: Regions {
                 region_blocks: self.region_blocks,
                 shards: self.shards,
             },
-        }
+        })
     }
 }
 
@@ -186,7 +175,7 @@ async fn worker(args: &WorkerArgs) -> Result<()> {
         bail!("--checkpoint-every must be at least 1");
     }
     let site = args.site.connect().await?;
-    site.settle_config(&args.map.config()).await?;
+    site.settle_config(&args.map.config()?).await?;
     let options = WorkerOptions {
         id: name(&args.name)?,
         checkpoint_every: args.checkpoint_every,
@@ -272,7 +261,7 @@ async fn fetch(args: &FetchArgs) -> Result<()> {
 
 async fn replay(args: &ReplayArgs, quiet: bool) -> Result<()> {
     let site = args.site.connect().await?;
-    site.settle_config(&args.map.config()).await?;
+    site.settle_config(&args.map.config()?).await?;
     let bar = progress::bar(0, "replay", quiet);
     let (mesh, report) = depthmesh_cluster::fetch::replay(&site, |seq, last| {
         bar.set_length(last);

@@ -22,12 +22,10 @@ pub enum RealMap {
     Planes,
 }
 
-/// Flags that choose and size the map.
+/// The TSDF's sizes and the depth range frames are read with: flags of the
+/// commands that map, and a cluster site's settings.
 #[derive(Args, Debug, Clone)]
-pub struct MapArgs {
-    /// Map back-end.
-    #[arg(long, value_enum, default_value_t = RealMap::Tsdf)]
-    pub map: RealMap,
+pub struct TsdfArgs {
     /// Voxel size in metres (tsdf).
     #[arg(long, default_value_t = 0.01, allow_negative_numbers = true)]
     pub voxel: f32,
@@ -38,15 +36,50 @@ pub struct MapArgs {
     /// weight threshold; 1 meshes all observed surface).
     #[arg(long, default_value_t = 1)]
     pub min_weight: u16,
-    /// Keep colour from the colour images (tsdf; 3 more bytes per voxel).
-    #[arg(long)]
-    pub color: bool,
     /// Nearer depths are dropped (metres).
     #[arg(long, default_value_t = 0.1, allow_negative_numbers = true)]
     pub depth_min: f32,
     /// Farther depths are dropped (metres).
     #[arg(long, default_value_t = 4.0, allow_negative_numbers = true)]
     pub depth_max: f32,
+}
+
+impl TsdfArgs {
+    /// The TSDF settings (colour off).
+    pub fn config(&self) -> TsdfConfig {
+        let mut config = TsdfConfig::new(self.voxel);
+        if let Some(t) = self.trunc {
+            config.truncation = t;
+        }
+        config.min_weight = self.min_weight;
+        config
+    }
+
+    /// Rejects a depth range that keeps nothing.
+    pub fn check(&self) -> Result<()> {
+        if !(self.depth_min >= 0.0 && self.depth_max > self.depth_min && self.depth_max.is_finite())
+        {
+            bail!(
+                "need 0 ≤ --depth-min < --depth-max, got {} and {}",
+                self.depth_min,
+                self.depth_max
+            );
+        }
+        Ok(())
+    }
+}
+
+/// Flags that choose and size the map.
+#[derive(Args, Debug, Clone)]
+pub struct MapArgs {
+    /// Map back-end.
+    #[arg(long, value_enum, default_value_t = RealMap::Tsdf)]
+    pub map: RealMap,
+    #[command(flatten)]
+    pub tsdf: TsdfArgs,
+    /// Keep colour from the colour images (tsdf; 3 more bytes per voxel).
+    #[arg(long)]
+    pub color: bool,
     #[command(flatten)]
     pub planes: PlanesArgs,
     /// Re-mesh the changed blocks (tsdf) or windows (planes) every N frames (0: once, at the end).
@@ -59,18 +92,11 @@ pub struct MapArgs {
 impl MapArgs {
     /// Rejects flags that do not go together, before any frame is read.
     pub fn check(&self) -> Result<()> {
-        if !(self.depth_min >= 0.0 && self.depth_max > self.depth_min && self.depth_max.is_finite())
-        {
-            bail!(
-                "need 0 ≤ --depth-min < --depth-max, got {} and {}",
-                self.depth_min,
-                self.depth_max
-            );
-        }
+        self.tsdf.check()?;
         if self.color && self.map != RealMap::Tsdf {
             bail!("--color applies to --map tsdf only");
         }
-        if self.min_weight != 1 && self.map != RealMap::Tsdf {
+        if self.tsdf.min_weight != 1 && self.map != RealMap::Tsdf {
             bail!("--min-weight applies to --map tsdf only");
         }
         self.bounded.check(self.map == RealMap::Tsdf)
@@ -80,15 +106,11 @@ impl MapArgs {
     pub fn config(&self, intrinsics: Intrinsics) -> MapConfig {
         match self.map {
             RealMap::Tsdf => {
-                let mut config = TsdfConfig::new(self.voxel);
-                if let Some(t) = self.trunc {
-                    config.truncation = t;
-                }
+                let mut config = self.tsdf.config();
                 config.color = self.color;
-                config.min_weight = self.min_weight;
                 MapConfig::Tsdf(TsdfSettings {
                     config,
-                    range: (self.depth_min, self.depth_max),
+                    range: (self.tsdf.depth_min, self.tsdf.depth_max),
                     remesh_every: self.remesh_every,
                     active_radius: self.bounded.active_radius,
                 })

@@ -58,8 +58,8 @@ pub fn run(args: &ReconstructArgs, quiet: bool) -> Result<()> {
     args.map.check()?;
     args.map.bounded.check_export(&args.export)?;
     let options = args.frames.options(DatasetOptions {
-        depth_min: args.map.depth_min,
-        depth_max: args.map.depth_max,
+        depth_min: args.map.tsdf.depth_min,
+        depth_max: args.map.tsdf.depth_max,
         color: args.map.color,
         skip_bad_frames: args.skip_bad_frames,
         ..DatasetOptions::default()

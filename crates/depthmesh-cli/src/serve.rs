@@ -93,7 +93,7 @@ pub fn run(args: &ServeArgs) -> Result<()> {
         token: token.clone(),
         out: args.out.clone(),
         limits,
-        depth_range: (args.map.depth_min, args.map.depth_max),
+        depth_range: (args.map.tsdf.depth_min, args.map.tsdf.depth_max),
         tracker: TrackerConfig::default(),
         map: Box::new(move |k| map.config(k)),
         checkpoint_every: args.store.then_some(args.checkpoint_every),

@@ -13,7 +13,7 @@ mod common;
 use common::nats::NatsServer;
 use common::{depthmesh, ok, scratch, simulated_frames_folder};
 use depthmesh::mesh::ply::read_ply;
-use std::path::Path;
+use std::path::{Path, PathBuf};
 use std::process::{Child, Command, Output, Stdio};
 use std::time::{Duration, Instant};
 
@@ -77,6 +77,65 @@ fn triangles(path: &Path) -> Vec<[[u32; 3]; 3]> {
     out
 }
 
+/// A scratch folder for test `name` with `count` simulated frames of the
+/// table scene in `frames/`, and a nats-server of its own.
+fn setup(name: &str, count: u32) -> (PathBuf, PathBuf, NatsServer) {
+    let dir = scratch(name);
+    let frames = dir.join("frames");
+    std::fs::create_dir_all(&frames).unwrap();
+    simulated_frames_folder(&frames, count);
+    let nats = NatsServer::start(&dir);
+    (dir, frames, nats)
+}
+
+/// `cluster fetch --wait` of `site` into `DIR/fetched.ply`: its report and the file.
+fn fetch(dir: &Path, url: &str, site: &str) -> (serde_json::Value, PathBuf) {
+    let fetched = dir.join("fetched.ply");
+    let report = json(&depthmesh(&[
+        "cluster",
+        "fetch",
+        "--nats",
+        url,
+        "--site",
+        site,
+        "--wait",
+        "--timeout",
+        "60",
+        "-o",
+        fetched.to_str().unwrap(),
+    ]));
+    assert_eq!(report["every_frame_fused_once"], true, "{report}");
+    (report, fetched)
+}
+
+/// `fetched` has the triangles `reconstruct FRAMES EXTRA` makes; its summary.
+fn assert_reconstruct_made(
+    dir: &Path,
+    frames: &Path,
+    extra: &[&str],
+    fetched: &Path,
+) -> serde_json::Value {
+    let out = dir.join("reconstructed");
+    let mut args = vec![
+        "reconstruct",
+        frames.to_str().unwrap(),
+        "--out",
+        out.to_str().unwrap(),
+    ];
+    args.extend(extra);
+    args.push("--quiet");
+    ok(&depthmesh(&args));
+    let (cluster, alone) = (triangles(fetched), triangles(&out.join("mesh.ply")));
+    assert!(alone.len() > 5_000, "{}", alone.len());
+    assert!(
+        cluster == alone,
+        "{} against {} triangles",
+        cluster.len(),
+        alone.len()
+    );
+    common::summary(&out)
+}
+
 fn status(url: &str, site: &str) -> serde_json::Value {
     json(&depthmesh(&[
         "cluster", "status", "--nats", url, "--site", site,
@@ -86,11 +145,7 @@ fn status(url: &str, site: &str) -> serde_json::Value {
 #[test]
 #[ignore = "needs nats-server: run by .ci/cluster"]
 fn a_worker_killed_halfway_loses_no_frame_and_fuses_none_twice() {
-    let dir = scratch("cluster-kill");
-    let frames = dir.join("frames");
-    std::fs::create_dir_all(&frames).unwrap();
-    simulated_frames_folder(&frames, 60);
-    let nats = NatsServer::start(&dir);
+    let (dir, frames, nats) = setup("cluster-kill", 60);
     let url = nats.url.as_str();
     let site = ["--nats", url, "--site", "kill"];
     let worker = |name: &str| {
@@ -136,22 +191,8 @@ fn a_worker_killed_halfway_loses_no_frame_and_fuses_none_twice() {
     assert!(finish(a, Duration::from_secs(60)).success());
     assert!(finish(b, Duration::from_secs(60)).success());
 
-    let fetched = dir.join("fetched.ply");
-    let report = json(&depthmesh(&[
-        "cluster",
-        "fetch",
-        "--nats",
-        url,
-        "--site",
-        "kill",
-        "--wait",
-        "--timeout",
-        "60",
-        "-o",
-        fetched.to_str().unwrap(),
-    ]));
+    let (report, fetched) = fetch(&dir, url, "kill");
     assert_eq!(report["frames_in_stream"], 60, "{report}");
-    assert_eq!(report["every_frame_fused_once"], true, "{report}");
     let after = status(url, "kill");
     assert_eq!(after["lag"], 0, "{after}");
     let ids: Vec<&str> = after["workers"]
@@ -190,11 +231,7 @@ fn a_worker_killed_halfway_loses_no_frame_and_fuses_none_twice() {
 #[test]
 #[ignore = "needs nats-server: run by .ci/cluster"]
 fn sensors_published_in_folder_order_give_the_map_reconstruct_makes() {
-    let dir = scratch("cluster-order");
-    let frames = dir.join("frames");
-    std::fs::create_dir_all(&frames).unwrap();
-    simulated_frames_folder(&frames, 24);
-    let nats = NatsServer::start(&dir);
+    let (dir, frames, nats) = setup("cluster-order", 24);
     let url = nats.url.as_str();
     let f = frames.to_str().unwrap();
     for (sensor, range) in [("a", "0..12"), ("b", "12..24")] {
@@ -214,48 +251,16 @@ fn sensors_published_in_folder_order_give_the_map_reconstruct_makes() {
             )
         })
         .collect();
-    let fetched = dir.join("fetched.ply");
-    let report = json(&depthmesh(&[
-        "cluster",
-        "fetch",
-        "--nats",
-        url,
-        "--site",
-        "order",
-        "--wait",
-        "--timeout",
-        "60",
-        "-o",
-        fetched.to_str().unwrap(),
-    ]));
-    assert_eq!(report["every_frame_fused_once"], true, "{report}");
-    let out = dir.join("reconstructed");
-    ok(&depthmesh(&[
-        "reconstruct",
-        f,
-        "--out",
-        out.to_str().unwrap(),
-        "--quiet",
-    ]));
-    let (cluster, alone) = (triangles(&fetched), triangles(&out.join("mesh.ply")));
-    assert!(alone.len() > 5_000, "{}", alone.len());
-    assert!(
-        cluster == alone,
-        "{} against {} triangles",
-        cluster.len(),
-        alone.len()
-    );
+    let (report, fetched) = fetch(&dir, url, "order");
+    assert_eq!(report["frames_in_stream"], 24, "{report}");
+    assert_reconstruct_made(&dir, &frames, &[], &fetched);
     drop(workers);
 }
 
 #[test]
 #[ignore = "needs nats-server: run by .ci/cluster"]
 fn a_sensor_without_poses_is_tracked_once_even_when_its_tracker_dies() {
-    let dir = scratch("cluster-track");
-    let frames = dir.join("frames");
-    std::fs::create_dir_all(&frames).unwrap();
-    simulated_frames_folder(&frames, 40);
-    let nats = NatsServer::start(&dir);
+    let (dir, frames, nats) = setup("cluster-track", 40);
     let url = nats.url.as_str();
     let f = frames.to_str().unwrap();
     let site = ["--nats", url, "--site", "track"];
@@ -295,48 +300,19 @@ fn a_sensor_without_poses_is_tracked_once_even_when_its_tracker_dies() {
     };
     trackers.retain(|(name, _)| *name != killed);
     assert!(finish(publisher, Duration::from_secs(60)).success());
-    let fetched = dir.join("fetched.ply");
-    let report = json(&depthmesh(&[
-        "cluster",
-        "fetch",
-        "--nats",
-        url,
-        "--site",
-        "track",
-        "--wait",
-        "--timeout",
-        "60",
-        "-o",
-        fetched.to_str().unwrap(),
-    ]));
+    let (report, fetched) = fetch(&dir, url, "track");
     let survivor = std::fs::read_to_string(dir.join(format!("{}.log", trackers[0].0))).unwrap();
     assert!(
         survivor.contains("tracking sensor a (frames up to Some("),
         "{survivor}"
     );
-    let out = dir.join("reconstructed");
-    ok(&depthmesh(&[
-        "reconstruct",
-        f,
-        "--track",
-        "--out",
-        out.to_str().unwrap(),
-        "--quiet",
-    ]));
-    let alone = common::summary(&out);
-    assert_eq!(report["every_frame_fused_once"], true, "{report}");
+    let alone = assert_reconstruct_made(&dir, &frames, &["--track"], &fetched);
     assert_eq!(report["frames_lost"], alone["lost_frames"], "{report}");
+    let lost = report["frames_lost"].as_u64().unwrap();
     assert_eq!(
-        report["frames_in_stream"].as_u64().unwrap() + report["frames_lost"].as_u64().unwrap(),
-        40
-    );
-    let (cluster, alone) = (triangles(&fetched), triangles(&out.join("mesh.ply")));
-    assert!(alone.len() > 5_000, "{}", alone.len());
-    assert!(
-        cluster == alone,
-        "{} against {} triangles",
-        cluster.len(),
-        alone.len()
+        report["frames_in_stream"].as_u64().unwrap() + lost,
+        40,
+        "{report}"
     );
     drop((worker, trackers));
 }
