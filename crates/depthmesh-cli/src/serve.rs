@@ -53,6 +53,13 @@ pub struct ServeArgs {
     /// With --store: commit a checkpoint every this many frames.
     #[arg(long, default_value_t = 30)]
     pub checkpoint_every: u32,
+    /// Show a cluster site in the browser view too, as `site-NAME`: the
+    /// NATS server (nats://HOST:PORT) of --site.
+    #[arg(long, requires = "site")]
+    pub nats: Option<String>,
+    /// The site to show (--nats).
+    #[arg(long, requires = "nats")]
+    pub site: Option<String>,
 }
 
 /// Runs `serve` until interrupted (Ctrl-C or SIGTERM): live sessions then
@@ -109,11 +116,35 @@ pub fn run(args: &ServeArgs) -> Result<()> {
             writeln!(stdout, "token: {token}")?;
         }
         stdout.flush()?;
-        interrupted().await;
+        match (&args.nats, &args.site) {
+            (Some(url), Some(site)) => {
+                tokio::select! {
+                    _ = interrupted() => {}
+                    _ = show_site(url, site, &server) => {}
+                }
+            }
+            _ => interrupted().await,
+        }
         eprintln!("stopping: live sessions write their files");
         server.stop().await.context("server")?;
         Ok(())
     })
+}
+
+/// Shows `site` on `server` for as long as the server runs; a failure on
+/// the bus is said and the site followed again a little later.
+async fn show_site(url: &str, site: &str, server: &Server) {
+    let stop = std::sync::atomic::AtomicBool::new(false);
+    loop {
+        let followed = async {
+            let s = depthmesh_cluster::Site::connect(url, site, None).await?;
+            depthmesh_cluster::view::follow(&s, server, &stop).await
+        };
+        if let Err(e) = followed.await {
+            eprintln!("site {site} on {url}: {e}; trying again in 5 s");
+        }
+        tokio::time::sleep(Duration::from_secs(5)).await;
+    }
 }
 
 /// Waits for Ctrl-C or SIGTERM.

@@ -5,12 +5,13 @@
 //! stream, every frame fused once. With the sensors' frames in folder
 //! order, the cluster's map equals `reconstruct`'s; a sensor without poses
 //! is tracked by a tracker worker, killed halfway too, and the map equals
-//! `reconstruct --track`'s. Needs `nats-server`, so it is ignored by
+//! `reconstruct --track`'s; `serve --nats` shows the site's map to a viewer. Needs `nats-server`, so it is ignored by
 //! default; `.ci/cluster` installs it and runs it.
 
 mod common;
 
 use common::nats::NatsServer;
+use common::served::{Served, TOKEN};
 use common::{depthmesh, ok, scratch, simulated_frames_folder};
 use depthmesh::mesh::ply::read_ply;
 use std::path::{Path, PathBuf};
@@ -254,6 +255,32 @@ fn sensors_published_in_folder_order_give_the_map_reconstruct_makes() {
     let (report, fetched) = fetch(&dir, url, "order");
     assert_eq!(report["frames_in_stream"], 24, "{report}");
     assert_reconstruct_made(&dir, &frames, &[], &fetched);
+    // The site in the browser view: a viewer who joins now is sent the map.
+    let served = Served::start(&dir.join("served"), &["--nats", url, "--site", "order"]);
+    let deadline = Instant::now() + Duration::from_secs(30);
+    let watched = loop {
+        let out = depthmesh(&[
+            "watch",
+            "site-order",
+            "--server",
+            &served.url,
+            "--token",
+            TOKEN,
+            "--timeout",
+            "2",
+        ]);
+        // A live view never ends: `watch` says so and prints what it got.
+        let got: Option<serde_json::Value> = serde_json::from_slice(&out.stdout).ok();
+        if let Some(w) = got.filter(|w| w["triangles"] == report["triangles"]) {
+            break w;
+        }
+        assert!(
+            Instant::now() < deadline,
+            "the view never held the site's map: {:?}",
+            out
+        );
+    };
+    assert_eq!(watched["figures"]["frames"], 24, "{watched}");
     drop(workers);
 }
 

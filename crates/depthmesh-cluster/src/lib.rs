@@ -24,6 +24,7 @@ pub mod publish;
 pub mod site;
 pub mod status;
 pub mod tracker;
+pub mod view;
 pub mod worker;
 
 pub use error::{ClusterError, Result};

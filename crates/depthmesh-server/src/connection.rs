@@ -296,6 +296,7 @@ fn open(shared: &Shared, text: &str) -> Result<Opened, String> {
                 map: session.backend().mapper().name(),
                 progress: progress.clone(),
                 inbox: Some(inbox.clone()),
+                external: false,
                 view: view.clone(),
             },
         );
@@ -346,7 +347,7 @@ fn mapping_now(shared: &Shared, name: &str) -> bool {
 /// What a viewer is told of a session first: its back-end, its camera,
 /// and how the page should group the map's parts into drawn meshes (see
 /// [`Session::part_group_bits`]).
-fn view_info(name: &str, session: &Session) -> serde_json::Value {
+pub(crate) fn view_info(name: &str, session: &Session) -> serde_json::Value {
     let map = session.backend().mapper().name();
     let group_bits = session.part_group_bits();
     let k = session.config().intrinsics;

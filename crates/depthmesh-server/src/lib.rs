@@ -9,6 +9,7 @@
 
 pub mod client;
 mod connection;
+pub mod external;
 mod jpeg;
 pub mod protocol;
 pub mod server;
@@ -18,4 +19,5 @@ mod web;
 mod worker;
 
 pub use client::{stream, FrameSource, Progress, SourceFrame, StreamOptions, StreamResult};
+pub use external::ExternalView;
 pub use server::{Limits, ServeOptions, Server};

@@ -95,6 +95,8 @@ pub(crate) struct Entry {
     pub progress: Arc<Mutex<Progress>>,
     /// Its thread's queue while it maps; `None` once finished.
     pub inbox: Option<Arc<Inbox>>,
+    /// A view of a map made elsewhere (see [`crate::external`]): live while the server runs.
+    pub external: bool,
     /// What its viewers see.
     pub view: Arc<ViewHub>,
 }
@@ -119,6 +121,7 @@ impl Shared {
 pub struct Server {
     /// Where it listens.
     pub addr: SocketAddr,
+    pub(crate) shared: Arc<Shared>,
     stop: watch::Sender<bool>,
     task: tokio::task::JoinHandle<std::io::Result<()>>,
 }
@@ -147,7 +150,7 @@ impl Server {
             .route("/ws", get(upgrade))
             .route("/api/sessions", get(list))
             .route("/api/sessions/{name}/{file}", get(download))
-            .with_state(shared);
+            .with_state(shared.clone());
         let mut stopped = shutdown;
         let task = tokio::spawn(async move {
             axum::serve(listener, app)
@@ -156,7 +159,12 @@ impl Server {
                 })
                 .await
         });
-        Ok(Server { addr, stop, task })
+        Ok(Server {
+            addr,
+            shared,
+            stop,
+            task,
+        })
     }
 
     /// Ends every session (each writes its files) and stops serving.
@@ -216,7 +224,7 @@ async fn list(
             json!({
                 "name": name,
                 "map": e.map,
-                "live": e.inbox.is_some(),
+                "live": e.inbox.is_some() || e.external,
                 "frames": p.frames,
                 "elements": p.elements,
                 // The mesh's triangles once the session ended; while it maps,

@@ -156,6 +156,27 @@ impl Feed {
         self.last = Some(now);
     }
 
+    /// After the map changed other than by a frame (a map followed from
+    /// elsewhere): publishes changed parts with `figures` if viewers are
+    /// watching and a tick has passed, or at once and every changed part
+    /// when `settled`.
+    pub fn after_change(&mut self, session: &mut Session, figures: Value, settled: bool) {
+        if !self.hub.watched() {
+            return;
+        }
+        let now = Instant::now();
+        if !settled && self.last.is_some_and(|t| now - t < TICK) {
+            return;
+        }
+        let parts = self.changed_parts(session, now, settled);
+        self.hub.publish(Update {
+            parts,
+            figures: Some(figures),
+            ..Update::default()
+        });
+        self.last = Some(now);
+    }
+
     /// When the session ended: publishes every part not yet sent in its
     /// final version (all of them, if nobody watched: a viewer may still
     /// open the finished session), and the summary.
