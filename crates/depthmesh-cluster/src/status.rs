@@ -4,7 +4,7 @@
 use crate::checkpoint::{read_manifest, shard_key};
 use crate::error::{ClusterError, Result};
 use crate::fetch::{frames_by_sensor, SensorFrames};
-use crate::site::Site;
+use crate::site::{Site, SiteConfig};
 use crate::tracker::TrackerBeat;
 use crate::worker::Heartbeat;
 use async_nats::jetstream::consumer::{pull, DeliverPolicy};
@@ -45,6 +45,8 @@ pub struct SensorStatus {
 pub struct Status {
     /// The site.
     pub site: String,
+    /// Its settings (`None` until its first worker sets them).
+    pub settings: Option<SiteConfig>,
     /// The stream's last message.
     pub stream_last: u64,
     /// Live fusion workers.
@@ -63,11 +65,12 @@ pub struct Status {
 
 /// The site's status now.
 pub async fn status(site: &Site) -> Result<Status> {
-    let config = site.required_config().await?;
+    // A site no worker has set up yet has frames but no shards.
+    let config = site.config().await?;
     let stream_last = site.last_seq().await?;
     let (workers, trackers) = heartbeats(site).await?;
     let mut shards = Vec::new();
-    for s in 0..config.regions.shards {
+    for s in 0..config.map_or(0, |c| c.regions.shards) {
         let owner = site
             .leases
             .get(shard_key(s))
@@ -100,6 +103,7 @@ pub async fn status(site: &Site) -> Result<Status> {
     }
     Ok(Status {
         site: site.name.clone(),
+        settings: config,
         stream_last,
         frames_per_second: workers.iter().map(|w| w.frames_per_second).sum(),
         workers,
