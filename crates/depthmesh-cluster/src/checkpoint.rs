@@ -141,6 +141,29 @@ pub async fn load_blocks(site: &Site, shard: u32, manifest: &Manifest) -> Result
     Ok(blocks)
 }
 
+/// The blocks of shard `shard` as `manifest` says, or, when a segment it
+/// names is gone (the owner wrote the shard whole and deleted the older
+/// segments meanwhile), as the newer manifest says; with the manifest read.
+pub async fn load_shard(
+    site: &Site,
+    shard: u32,
+    manifest: Manifest,
+) -> Result<(Manifest, KeyMap<Block>)> {
+    let mut manifest = manifest;
+    for _ in 0..3 {
+        let failed = match load_blocks(site, shard, &manifest).await {
+            Ok(blocks) => return Ok((manifest, blocks)),
+            Err(e) => e,
+        };
+        match read_manifest(site, shard).await? {
+            Some((newer, _)) if newer != manifest => manifest = newer,
+            _ => return Err(failed),
+        }
+    }
+    let blocks = load_blocks(site, shard, &manifest).await?;
+    Ok((manifest, blocks))
+}
+
 /// Stores a segment under `name`.
 pub async fn write_segment(site: &Site, name: &str, bytes: &[u8]) -> Result<()> {
     let mut reader = bytes;

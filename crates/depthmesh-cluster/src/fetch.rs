@@ -2,7 +2,7 @@
 //! fetch`), or fused afresh from the whole stream in one process (`cluster
 //! replay`, the reference a cluster must equal).
 
-use crate::checkpoint::{load_blocks, read_manifest, Manifest};
+use crate::checkpoint::{load_shard, read_manifest, Manifest};
 use crate::error::{ClusterError, Result};
 use crate::fuse::{Fused, Fuser, StreamReader};
 use crate::site::Site;
@@ -179,7 +179,8 @@ pub async fn fetch(site: &Site, wait: Option<Duration>) -> Result<(Mesh, FetchRe
             report.frames_fused_min = 0;
             continue;
         };
-        let blocks = load_blocks(site, shard as u32, m).await?;
+        let (m, blocks) = load_shard(site, shard as u32, m.clone()).await?;
+        let m = &m;
         report.blocks += blocks.len() as u64;
         report.checkpoint_bytes += m.segment_bytes;
         report.frames_fused_min = report.frames_fused_min.min(m.frames);

@@ -102,7 +102,12 @@ async fn load_new(
                 .collect(),
             ..manifest.clone()
         };
-        let blocks = load_blocks(site, shard as u32, &new).await?;
+        let blocks = match load_blocks(site, shard as u32, &new).await {
+            Ok(b) => b,
+            // Written whole and its older segments deleted meanwhile: the
+            // next poll reads the newer manifest.
+            Err(_) => continue,
+        };
         if let Backend::Tsdf(t) = session.backend_mut() {
             let frames = t.volume().frames() + 1;
             t.restore(blocks.into_values().collect(), frames)?;

@@ -18,7 +18,7 @@
 //! those above it back, checkpointed.
 
 use crate::checkpoint::{
-    commit, encode_segment, load_blocks, read_manifest, shard_key, write_segment, Manifest,
+    commit, encode_segment, load_shard, read_manifest, shard_key, write_segment, Manifest,
 };
 use crate::error::{ClusterError, Result};
 use crate::fuse::{FuseTimes, Fused, Fuser, StreamReader};
@@ -425,7 +425,7 @@ impl Worker<'_> {
             Some((m, r)) => (m, Some(r)),
             None => (Manifest::default(), None),
         };
-        let blocks = load_blocks(&self.site, shard, &manifest).await?;
+        let (manifest, blocks) = load_shard(&self.site, shard, manifest).await?;
         self.fuser
             .volume
             .restore(blocks.into_values().collect(), 0)?;
