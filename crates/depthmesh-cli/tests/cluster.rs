@@ -307,20 +307,22 @@ fn a_sensor_without_poses_is_tracked_once_even_when_its_tracker_dies() {
         spawn(&args, &dir.join(format!("{name}.log")))
     };
     let mut trackers = vec![("t1", tracker("t1")), ("t2", tracker("t2"))];
-    let mut args = vec!["stream", f, "--track", "--sensor", "a", "--rate", "15"];
+    let mut args = vec!["stream", f, "--track", "--sensor", "a", "--rate", "10"];
     args.extend(site);
     let publisher = spawn(&args, &dir.join("a.log"));
-    // Kill whichever tracker holds the sensor once it has published some frames.
+    // Kill whichever tracker holds the sensor once ten tracked frames are
+    // on the stream (the sensor is then a quarter through its four seconds).
     let deadline = Instant::now() + Duration::from_secs(30);
     let killed = loop {
         assert!(Instant::now() < deadline, "no tracker published frames");
         let s = status(url, "track");
+        let posed = s["sensors"]["a"]["frames"]["posed"].as_u64().unwrap_or(0);
         let busy = s["trackers"]
             .as_array()
             .unwrap()
             .iter()
-            .find(|t| t["sensor"] == "a" && t["published"].as_u64().unwrap_or(0) >= 10);
-        if let Some(t) = busy {
+            .find(|t| t["sensor"] == "a");
+        if let (true, Some(t)) = (posed >= 10, busy) {
             break t["id"].as_str().unwrap().to_string();
         }
         std::thread::sleep(Duration::from_millis(100));
