@@ -114,7 +114,7 @@ impl Fuser {
         &mut self,
         site: &Site,
         msg: &StreamMessage,
-        keep: impl Fn(IVec3) -> bool,
+        keep: impl Fn(IVec3) -> bool + Sync,
     ) -> Result<Fused> {
         let Some((sensor, true)) = site.sensor_of(msg.subject.as_str()) else {
             return Ok(Fused::Skipped);

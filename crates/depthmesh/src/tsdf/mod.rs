@@ -312,7 +312,7 @@ impl TsdfVolume {
         color: Option<&ColorImage>,
         intrinsics: &Intrinsics,
         pose: &Pose,
-        keep: impl Fn(IVec3) -> bool,
+        keep: impl Fn(IVec3) -> bool + Sync,
     ) -> Result<()> {
         let color = match (self.config.color, color) {
             (true, Some(c)) if c.width != depth.width || c.height != depth.height => {
@@ -380,7 +380,7 @@ impl TsdfVolume {
         depth: &DepthImage,
         k: &Intrinsics,
         pose: &Pose,
-        keep: impl Fn(IVec3) -> bool,
+        keep: impl Fn(IVec3) -> bool + Sync,
     ) {
         let c = self.config;
         let block_size = c.voxel * BLOCK as f32;
@@ -415,7 +415,8 @@ impl TsdfVolume {
                         let p = pose.translation + ray * z;
                         let key = (p / block_size).floor().as_ivec3();
                         // Samples along a ray mostly stay in one block.
-                        if keys.last() != Some(&key) {
+                        // Blocks not kept are dropped here, before the sort.
+                        if keys.last() != Some(&key) && keep(key) {
                             keys.push(key);
                         }
                     }
@@ -433,7 +434,6 @@ impl TsdfVolume {
         }
         self.keys.par_sort_unstable_by_key(|k| (k.x, k.y, k.z));
         self.keys.dedup();
-        self.keys.retain(|&k| keep(k));
         if let Some(radius) = self.reach {
             let camera = pose.translation;
             let keys = std::mem::take(&mut self.keys);
