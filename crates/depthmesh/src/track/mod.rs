@@ -17,6 +17,7 @@
 pub mod degeneracy;
 pub mod ferns;
 pub mod filter;
+pub mod global_registration;
 pub mod icp;
 pub mod pyramid;
 pub mod tracker;
