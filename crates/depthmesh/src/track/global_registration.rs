@@ -339,6 +339,8 @@ pub struct MapFeatures {
     /// Whether `cloud` is older than `cells`.
     stale: bool,
     cloud: Cloud,
+    /// The described points' descriptors, for nearest-neighbour search.
+    tree: FeatureTree,
     view: Pyramid,
 }
 
@@ -359,6 +361,7 @@ impl MapFeatures {
         self.views = poses.len();
         if self.stale {
             self.cloud.build(&self.cells);
+            self.tree.build(&self.cloud);
             self.stale = false;
         }
     }
@@ -406,25 +409,16 @@ impl GlobalRegistration {
         self.frame.build(&self.cells);
         let frame = &self.frame;
         // Each described frame point's nearest map descriptor.
-        let usable: Vec<usize> = (0..target.points.len())
-            .filter(|&j| target.neighbours[j] >= MIN_NEIGHBOURS)
-            .collect();
         self.matches.clear();
         // Parallel collection keeps the order: the samples are repeatable.
+        let tree = &map.tree;
         self.matches.par_extend(
             (0..frame.points.len())
                 .into_par_iter()
                 .filter(|&i| frame.neighbours[i] >= MIN_NEIGHBOURS)
                 .filter_map(|i| {
-                    let f = &frame.features[i];
-                    let (mut best, mut best_d) = (None, f32::INFINITY);
-                    for &j in &usable {
-                        let d = squared_distance(f, &target.features[j], best_d);
-                        if d < best_d {
-                            (best, best_d) = (Some(j as u32), d);
-                        }
-                    }
-                    best.map(|j| (i as u32, j))
+                    tree.nearest(&target.features, &frame.features[i])
+                        .map(|j| (i as u32, j))
                 }),
         );
         self.ransac(target, count)
@@ -493,6 +487,129 @@ impl GlobalRegistration {
                 }
             })
             .collect()
+    }
+}
+
+/// Map points per leaf of the [`FeatureTree`]: a leaf is searched by brute
+/// force, which at this size costs less than splitting further.
+const LEAF: usize = 16;
+
+/// An exact k-d tree over the described map points' descriptors (those
+/// with at least [`MIN_NEIGHBOURS`] neighbours): matching a frame's few
+/// thousand points against all of the map's by brute force is most of a
+/// relocalisation's time; descriptors cluster (planes, edges, corners), so
+/// most of the tree is pruned even in 33 dimensions.
+#[derive(Clone, Debug, Default)]
+struct FeatureTree {
+    /// Point indices, each leaf's contiguous.
+    indices: Vec<u32>,
+    nodes: Vec<Node>,
+}
+
+/// A node of a [`FeatureTree`].
+#[derive(Clone, Copy, Debug)]
+enum Node {
+    /// Points `indices[start..end]`.
+    Leaf { start: u32, end: u32 },
+    /// Descriptors with `dim` below `value` go left (the next node), the
+    /// others to node `right`.
+    Split { dim: u8, value: f32, right: u32 },
+}
+
+impl FeatureTree {
+    /// Rebuilds the tree over `cloud`'s usable descriptors.
+    fn build(&mut self, cloud: &Cloud) {
+        self.indices.clear();
+        self.indices.extend(
+            (0..cloud.points.len() as u32)
+                .filter(|&j| cloud.neighbours[j as usize] >= MIN_NEIGHBOURS),
+        );
+        self.nodes.clear();
+        let mut indices = std::mem::take(&mut self.indices);
+        let n = indices.len();
+        self.split(&cloud.features, &mut indices, 0, n);
+        self.indices = indices;
+    }
+
+    /// Adds the subtree of `indices[start..end]`, splitting at the median
+    /// of the dimension that spreads most.
+    fn split(&mut self, features: &[Feature], indices: &mut [u32], start: usize, end: usize) {
+        let here = &mut indices[start..end];
+        if here.len() <= LEAF {
+            self.nodes.push(Node::Leaf {
+                start: start as u32,
+                end: end as u32,
+            });
+            return;
+        }
+        let mut lo = [f32::INFINITY; FEATURE_LEN];
+        let mut hi = [f32::NEG_INFINITY; FEATURE_LEN];
+        for &j in here.iter() {
+            for (d, &v) in features[j as usize].iter().enumerate() {
+                lo[d] = lo[d].min(v);
+                hi[d] = hi[d].max(v);
+            }
+        }
+        let dim = (0..FEATURE_LEN)
+            .max_by(|&a, &b| (hi[a] - lo[a]).total_cmp(&(hi[b] - lo[b])))
+            .unwrap_or(0);
+        let mid = here.len() / 2;
+        here.select_nth_unstable_by(mid, |&a, &b| {
+            features[a as usize][dim].total_cmp(&features[b as usize][dim])
+        });
+        let value = features[here[mid] as usize][dim];
+        let at = self.nodes.len();
+        self.nodes.push(Node::Split {
+            dim: dim as u8,
+            value,
+            right: 0,
+        });
+        self.split(features, indices, start, start + mid);
+        let right = self.nodes.len() as u32;
+        if let Node::Split { right: r, .. } = &mut self.nodes[at] {
+            *r = right;
+        }
+        self.split(features, indices, start + mid, end);
+    }
+
+    /// The index of the descriptor in `features` nearest to `query`.
+    fn nearest(&self, features: &[Feature], query: &Feature) -> Option<u32> {
+        let mut best = (f32::INFINITY, None);
+        if !self.nodes.is_empty() {
+            self.search(0, features, query, &mut best);
+        }
+        best.1
+    }
+
+    fn search(
+        &self,
+        node: usize,
+        features: &[Feature],
+        query: &Feature,
+        best: &mut (f32, Option<u32>),
+    ) {
+        match self.nodes[node] {
+            Node::Leaf { start, end } => {
+                for &j in &self.indices[start as usize..end as usize] {
+                    let d = squared_distance(query, &features[j as usize], best.0);
+                    if d < best.0 {
+                        *best = (d, Some(j));
+                    }
+                }
+            }
+            Node::Split { dim, value, right } => {
+                let diff = query[dim as usize] - value;
+                let (near, far) = if diff < 0.0 {
+                    (node + 1, right as usize)
+                } else {
+                    (right as usize, node + 1)
+                };
+                self.search(near, features, query, best);
+                if diff * diff < best.0 {
+                    self.search(far, features, query, best);
+                }
+            }
+        }
     }
 }
 

@@ -585,7 +585,10 @@ impl Tracker {
             .collect();
         let mut tried =
             Vec::with_capacity(GLOBAL_CANDIDATES + self.config.relocalisation.candidates);
-        let found = self.relocalise_from(&global, &mut tried, map);
+        // Candidates come best supported first, and the first one verified
+        // is taken: verification, not the ranking, guards against a wrong
+        // pose, and each further candidate costs a model view and ICP.
+        let found = self.relocalise_from(&global, &mut tried, true, map);
         if found.lost.is_none() {
             return found;
         }
@@ -595,7 +598,7 @@ impl Tracker {
             .into_iter()
             .map(|(pose, _)| pose)
             .collect();
-        let mut result = self.relocalise_from(&keyframes, &mut tried, map);
+        let mut result = self.relocalise_from(&keyframes, &mut tried, false, map);
         result.iterations += found.iterations;
         if result.lost.is_some() && result.iterations == found.iterations {
             // Nothing new was tried: the first failure is the global one's.
@@ -609,12 +612,13 @@ impl Tracker {
 
     /// ICP from each of `candidates` not within [`SAME_CANDIDATE`] of one
     /// in `tried` (which they join), each against the map's view from that
-    /// pose; the verified result with the most inliers, or the first
-    /// failure.
+    /// pose; the verified result with the most inliers (the first verified
+    /// one if `first`), or the first failure.
     fn relocalise_from(
         &mut self,
         candidates: &[Pose],
         tried: &mut Vec<Pose>,
+        first: bool,
         map: &dyn Mapper,
     ) -> Tracked {
         let mut best: Option<Tracked> = None;
@@ -642,6 +646,9 @@ impl Tracker {
                 None => {}
                 Some(_) if first_failure.iterations == 0 => first_failure = t,
                 Some(_) => {}
+            }
+            if first && best.is_some() {
+                break;
             }
         }
         let mut result = match best {
