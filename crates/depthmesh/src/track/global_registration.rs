@@ -24,9 +24,9 @@
 
 use super::pyramid::{Level, Pyramid};
 use crate::camera::{Intrinsics, Pose};
-use crate::linalg::horn;
+use crate::linalg::{horn, symmetric_eigen};
 use crate::map::Mapper;
-use glam::Vec3;
+use glam::{DVec3, Vec3};
 use rand::rngs::SmallRng;
 use rand::{Rng, SeedableRng};
 use rayon::prelude::*;
@@ -43,6 +43,14 @@ pub const VOXEL: f32 = 0.05;
 /// to be stable, small enough to lie mostly inside one view.
 pub const FEATURE_RADIUS: f32 = 5.0 * VOXEL;
 
+/// Normals are fitted to the points within this (metres): two cells,
+/// Open3D's choice with FPFH, about a dozen points on a surface.
+const NORMAL_RADIUS: f32 = 2.0 * VOXEL;
+
+/// A normal is fitted only to this many points or more (the point itself
+/// included); fewer keep the averaged measured normal.
+const MIN_NORMAL_POINTS: f64 = 5.0;
+
 /// Bins per angle of the histogram (Rusu et al.'s 11).
 const BINS: usize = 11;
 
@@ -55,6 +63,15 @@ pub type Feature = [f32; FEATURE_LEN];
 /// Points with fewer neighbours than this are not matched: their
 /// histograms are mostly noise (a lone speck, a frame's corner).
 const MIN_NEIGHBOURS: u32 = 8;
+
+/// Points whose neighbourhood within [`FEATURE_RADIUS`] varies less from
+/// a plane than this (surface variation, Pauly et al. 2002: the smallest
+/// eigenvalue of the covariance over their sum) are not matched: a wall or
+/// a floor looks the same everywhere, and matching it only adds wrong
+/// matches. A plane with 1 cm of noise varies by about 0.003 (σ² over
+/// R²/2); a point near an edge, with a tenth of its neighbours on the
+/// other face, by about 0.02.
+const MIN_VARIATION: f32 = 0.01;
 
 /// A cell whose averaged normal is shorter than this (the cell's normals
 /// disagree: a thin board seen from both sides, a corner) has no normal.
@@ -121,6 +138,42 @@ pub struct Cloud {
     order: Vec<(u64, u32)>,
     runs: HashMap<u64, (u32, u32)>,
     spfh: Vec<Feature>,
+    fitted: Vec<Vec3>,
+    /// Surface variation within [`FEATURE_RADIUS`] of each point: the
+    /// smallest eigenvalue of the neighbours' covariance over the sum.
+    variation: Vec<f32>,
+}
+
+/// Sums for the covariance of points (relative to one of them).
+#[derive(Clone, Copy, Debug, Default)]
+struct Spread {
+    sum: DVec3,
+    products: [[f64; 3]; 3],
+    count: f64,
+}
+
+impl Spread {
+    fn add(&mut self, d: DVec3) {
+        self.sum += d;
+        for (a, row) in self.products.iter_mut().enumerate() {
+            for (b, v) in row.iter_mut().enumerate() {
+                *v += d[a] * d[b];
+            }
+        }
+        self.count += 1.0;
+    }
+
+    /// Eigenvalues (ascending) and eigenvectors of the covariance.
+    fn eigen(&self) -> Option<([f64; 3], [[f64; 3]; 3])> {
+        if self.count < 3.0 {
+            return None;
+        }
+        let mean = self.sum / self.count;
+        let covariance: [[f64; 3]; 3] = std::array::from_fn(|a| {
+            std::array::from_fn(|b| self.products[a][b] / self.count - mean[a] * mean[b])
+        });
+        Some(symmetric_eigen(&covariance))
+    }
 }
 
 /// The cell of `p` for cells of side `size`, packed into one key (21 bits
@@ -157,6 +210,12 @@ fn accumulate(level: &Level, pose: &Pose, cells: &mut HashMap<u64, Cell>, max_ce
 }
 
 impl Cloud {
+    /// Whether point `i` is matched: enough neighbours for a stable
+    /// descriptor, and not inside a plane.
+    fn distinctive(&self, i: usize) -> bool {
+        self.neighbours[i] >= MIN_NEIGHBOURS && self.variation[i] >= MIN_VARIATION
+    }
+
     /// Rebuilds the cloud from `cells`, in the order of their keys (the
     /// hash map's order changes from run to run; the samples must not).
     fn build(&mut self, cells: &HashMap<u64, Cell>) {
@@ -206,6 +265,51 @@ impl Cloud {
             order: &self.order,
             runs: &self.runs,
         };
+        // Normals from the spread of the points within NORMAL_RADIUS (the
+        // least-spread direction), facing the way the measured ones do:
+        // a normal from neighbouring pixels of a noisy low-resolution depth
+        // image is off by 10–20°, more than a histogram bin, and a plane
+        // would then look like anything.
+        let measured = &self.normals;
+        self.fitted.resize(n, Vec3::ZERO);
+        self.variation.resize(n, 0.0);
+        self.fitted
+            .par_iter_mut()
+            .zip(self.variation.par_iter_mut())
+            .enumerate()
+            .for_each(|(i, (out, variation))| {
+                let p = search.points[i];
+                let mut near = Spread::default();
+                let mut wide = Spread::default();
+                near.add(DVec3::ZERO);
+                wide.add(DVec3::ZERO);
+                search.each(i, |j, d2| {
+                    let d = (search.points[j] - p).as_dvec3();
+                    wide.add(d);
+                    if d2 <= NORMAL_RADIUS * NORMAL_RADIUS {
+                        near.add(d);
+                    }
+                });
+                *variation = wide.eigen().map_or(0.0, |(values, _)| {
+                    (values[0] / values.iter().sum::<f64>().max(f64::MIN_POSITIVE)) as f32
+                });
+                *out = measured[i];
+                if near.count < MIN_NORMAL_POINTS {
+                    return;
+                }
+                let Some((_, vectors)) = near.eigen() else {
+                    return;
+                };
+                let fitted = DVec3::from_array(vectors[0]).as_vec3().normalize_or_zero();
+                if fitted != Vec3::ZERO {
+                    *out = if fitted.dot(measured[i]) < 0.0 {
+                        -fitted
+                    } else {
+                        fitted
+                    };
+                }
+            });
+        std::mem::swap(&mut self.normals, &mut self.fitted);
         let normals = &self.normals;
         self.spfh.resize(n, [0.0; FEATURE_LEN]);
         self.neighbours.resize(n, 0);
@@ -415,7 +519,7 @@ impl GlobalRegistration {
         self.matches.par_extend(
             (0..frame.points.len())
                 .into_par_iter()
-                .filter(|&i| frame.neighbours[i] >= MIN_NEIGHBOURS)
+                .filter(|&i| frame.distinctive(i))
                 .filter_map(|i| {
                     tree.nearest(&target.features, &frame.features[i])
                         .map(|j| (i as u32, j))
@@ -520,10 +624,8 @@ impl FeatureTree {
     /// Rebuilds the tree over `cloud`'s usable descriptors.
     fn build(&mut self, cloud: &Cloud) {
         self.indices.clear();
-        self.indices.extend(
-            (0..cloud.points.len() as u32)
-                .filter(|&j| cloud.neighbours[j as usize] >= MIN_NEIGHBOURS),
-        );
+        self.indices
+            .extend((0..cloud.points.len() as u32).filter(|&j| cloud.distinctive(j as usize)));
         self.nodes.clear();
         let mut indices = std::mem::take(&mut self.indices);
         let n = indices.len();
@@ -648,5 +750,221 @@ fn keep(best: &mut Vec<Candidate>, c: Candidate, count: usize) {
     if at < count {
         best.insert(at, c);
         best.truncate(count);
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::super::filter::{Bilateral, BilateralParams};
+    use super::super::tracker::tests::SceneMap;
+    use super::*;
+    use crate::sim::{NoiseModel, Scene, SceneOptions, SimulatedSensor};
+    use std::path::Path;
+
+    const ROOM: &str = include_str!("../../../../scenes/room.toml");
+
+    /// The room with clutter of different shapes and orientations, as a
+    /// kitchen has: the bare room is boxes, whose edges and corners all
+    /// look alike.
+    const CLUTTER: &str = r#"
+[[object]]
+shape = "sphere"
+radius = 0.25
+translation = [0.8, 0.25, -0.4]
+[[object]]
+shape = "cylinder"
+radius = 0.12
+height = 0.6
+translation = [-0.8, 0.3, 0.7]
+[[object]]
+shape = "box"
+size = [0.4, 0.35, 0.3]
+translation = [0.6, 0.175, 0.9]
+rotation = [0.0, 30.0, 0.0]
+[[object]]
+shape = "box"
+size = [0.3, 0.3, 0.5]
+translation = [-1.0, 0.35, -0.8]
+rotation = [20.0, 45.0, 0.0]
+[[object]]
+shape = "sphere"
+radius = 0.12
+translation = [0.2, 0.87, 0.1]
+[[object]]
+shape = "cylinder"
+radius = 0.05
+height = 0.3
+translation = [-0.3, 0.9, -0.2]
+"#;
+
+    /// Points on the faces of two boxes, with outward normals, about a
+    /// cell apart, each moved at random within its face: on a regular grid
+    /// many pairs are exactly symmetric about an edge, where which point's
+    /// frame the pair angles are taken in is decided by rounding (and the
+    /// angle flips sign). No two faces facing each other are within the
+    /// feature radius: the angle between opposite normals is ±180°, at the
+    /// histogram's border, and rounding picks either end.
+    fn two_boxes() -> (Vec<Vec3>, Vec<Vec3>) {
+        let (mut points, mut normals) = (Vec::new(), Vec::new());
+        let mut rng = SmallRng::seed_from_u64(3);
+        for (centre, half) in [
+            (Vec3::ZERO, Vec3::new(0.6, 0.3, 0.4)),
+            (Vec3::new(1.2, -0.1, 0.2), Vec3::new(0.2, 0.2, 0.3)),
+        ] {
+            for axis in 0..3 {
+                for sign in [-1.0f32, 1.0] {
+                    let mut n = Vec3::ZERO;
+                    n[axis] = sign;
+                    let (u, v) = ((axis + 1) % 3, (axis + 2) % 3);
+                    let step = 0.047;
+                    let steps = |a: usize| (half[a] * 2.0 / step) as i32;
+                    for i in 0..=steps(u) {
+                        for j in 0..=steps(v) {
+                            let mut p = centre + n * half[axis];
+                            p[u] += -half[u] + (i as f32 + rng.gen_range(0.0..0.5)) * step;
+                            p[v] += -half[v] + (j as f32 + rng.gen_range(0.0..0.5)) * step;
+                            points.push(p);
+                            normals.push(n);
+                        }
+                    }
+                }
+            }
+        }
+        (points, normals)
+    }
+
+    fn described(points: Vec<Vec3>, normals: Vec<Vec3>) -> Cloud {
+        let mut cloud = Cloud {
+            points,
+            normals,
+            ..Cloud::default()
+        };
+        cloud.describe();
+        cloud
+    }
+
+    #[test]
+    fn descriptors_do_not_change_with_where_the_surface_is() {
+        let (points, normals) = two_boxes();
+        let motion = Pose::look_at(Vec3::new(1.0, 2.0, -3.0), Vec3::new(0.3, 0.1, 0.5), Vec3::Y);
+        let moved = described(
+            points.iter().map(|p| motion.transform_point(*p)).collect(),
+            normals
+                .iter()
+                .map(|n| motion.transform_vector(*n))
+                .collect(),
+        );
+        let still = described(points, normals);
+        assert!(still.neighbours.iter().all(|&k| k >= MIN_NEIGHBOURS));
+        let mut worst = 0.0f32;
+        for (a, b) in still.features.iter().zip(&moved.features) {
+            // Each angle's histogram sums to 200 (the point's own 100 and
+            // its neighbours' weighted 100).
+            assert!((a.iter().sum::<f32>() - 600.0).abs() < 0.1, "{a:?}");
+            let dd = squared_distance(a, b, f32::INFINITY).sqrt();
+            worst = worst.max(dd);
+        }
+        // Angles at bin borders may fall either side after rounding: a
+        // few per mille of the histograms' mass.
+        assert!(worst < 5.0, "descriptors differ by {worst}");
+        // Yet they tell points apart (on a face, near an edge, near a
+        // corner): the median distance between different points' descriptors
+        // is many times that.
+        let n = still.features.len();
+        let mut apart: Vec<f32> = (0..n)
+            .map(|i| {
+                squared_distance(
+                    &still.features[i],
+                    &still.features[(i + n / 3) % n],
+                    f32::INFINITY,
+                )
+                .sqrt()
+            })
+            .collect();
+        apart.sort_by(f32::total_cmp);
+        assert!(apart[n / 2] > 20.0, "median {}", apart[n / 2]);
+    }
+
+    #[test]
+    fn the_tree_finds_the_nearest_descriptor() {
+        let (points, normals) = two_boxes();
+        let cloud = described(points, normals);
+        let mut tree = FeatureTree::default();
+        tree.build(&cloud);
+        let mut rng = SmallRng::seed_from_u64(1);
+        for _ in 0..200 {
+            let mut query = cloud.features[rng.gen_range(0..cloud.features.len())];
+            query
+                .iter_mut()
+                .for_each(|v| *v += rng.gen_range(-5.0..5.0));
+            // Only distinctive points are in the tree.
+            let brute = (0..cloud.features.len())
+                .filter(|&j| cloud.distinctive(j))
+                .map(|j| squared_distance(&query, &cloud.features[j], f32::INFINITY))
+                .fold(f32::INFINITY, f32::min);
+            let j = tree.nearest(&cloud.features, &query).unwrap() as usize;
+            assert_eq!(
+                squared_distance(&query, &cloud.features[j], f32::INFINITY),
+                brute
+            );
+        }
+    }
+
+    #[test]
+    fn a_frame_is_registered_to_a_map_seen_only_from_elsewhere() {
+        let text = format!("{ROOM}\n{CLUTTER}");
+        let room = Scene::parse(&text, Path::new("room.toml"), &SceneOptions::default()).unwrap();
+        let map = SceneMap {
+            scene: &room,
+            blind_below: 0,
+            mesh: Default::default(),
+        };
+        let k = Intrinsics::from_vertical_fov(160, 120, 60.0);
+        let centre = Vec3::new(0.0, 0.4, 0.0);
+        // The map seen from poses a quarter of the way around the room,
+        // 2 m out at 1.3 m, as a camera that passed there saw it.
+        let views: Vec<Pose> = (0..=8)
+            .map(|i| {
+                let a = (10.0 * i as f32).to_radians();
+                Pose::look_at(
+                    Vec3::new(2.0 * a.cos(), 1.3, 2.0 * a.sin()),
+                    centre,
+                    Vec3::Y,
+                )
+            })
+            .collect();
+        let mut features = MapFeatures::default();
+        features.update(&map, &views, &k);
+        assert!(features.cloud().points.len() > 500);
+        // The frame: nearer the middle and higher than every view, more
+        // than half a metre from each, looking down past the table.
+        let truth = Pose::look_at(
+            Vec3::new(1.0, 1.7, 1.0),
+            Vec3::new(-0.5, 0.2, -0.9),
+            Vec3::Y,
+        );
+        assert!(views
+            .iter()
+            .all(|v| v.translation.distance(truth.translation) > 0.5));
+        let mut sensor = SimulatedSensor::new(k, 0.4, 6.0, NoiseModel::Kinect, 2).unwrap();
+        // Smoothed as the tracker smooths every frame.
+        let mut smoothed = crate::image::DepthImage::default();
+        Bilateral::new(BilateralParams::default())
+            .unwrap()
+            .apply(&sensor.capture(&room, 1, &truth).depth, &mut smoothed);
+        let mut frame = Pyramid::default();
+        frame.build(&smoothed, &k, 1);
+        let mut registration = GlobalRegistration::default();
+        let found = registration.candidates(&frame.levels[0], &features, 3);
+        // Within ICP's reach: a few centimetres and degrees.
+        let best = found.first().expect("no candidate");
+        let d = best.pose.inverse().compose(&truth);
+        assert!(
+            d.translation.length() < 0.05 && d.rotation_angle().to_degrees() < 3.0,
+            "{:.3} m, {:.2}° (support {})",
+            d.translation.length(),
+            d.rotation_angle().to_degrees(),
+            best.support
+        );
     }
 }

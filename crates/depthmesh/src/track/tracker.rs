@@ -819,7 +819,7 @@ impl Tracker {
 }
 
 #[cfg(test)]
-mod tests {
+pub(super) mod tests {
     use super::*;
     use crate::sim::{NoiseModel, Scene, SceneOptions, SimulatedSensor};
     use glam::Vec3;
@@ -881,10 +881,10 @@ mod tests {
 
     /// A map that is the scene itself, blind in views narrower than
     /// `blind_below` pixels.
-    pub(super) struct SceneMap<'a> {
-        pub(super) scene: &'a Scene,
-        pub(super) blind_below: u32,
-        pub(super) mesh: crate::mesh::Mesh,
+    pub(in crate::track) struct SceneMap<'a> {
+        pub(in crate::track) scene: &'a Scene,
+        pub(in crate::track) blind_below: u32,
+        pub(in crate::track) mesh: crate::mesh::Mesh,
     }
 
     impl Mapper for SceneMap<'_> {
