@@ -2,9 +2,10 @@
 //! against the map's prediction from the last good pose, solving only for
 //! the directions the view constrains ([`super::degeneracy`]); a frame that
 //! contradicts the map is reported lost and never used, and the camera is
-//! then searched for near where it was and, failing that, from the
-//! keyframes most like the frame ([`super::ferns`]), every candidate pose
-//! verified against the map before it is accepted.
+//! then searched for near where it was and, failing that, by global
+//! registration against the map's surface ([`super::global_registration`])
+//! and from the keyframes most like the frame ([`super::ferns`]), every
+//! candidate pose verified against the map before it is accepted.
 
 use super::degeneracy::{Directions, Weak};
 use super::ferns::{FernConfig, Keyframes};
