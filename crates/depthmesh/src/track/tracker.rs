@@ -798,9 +798,12 @@ impl Tracker {
                 if self.lost_streak == 0 {
                     self.velocity = self.last_good.inverse().compose(&result.pose);
                     self.velocity_known = true;
-                    if result.weak_directions == 0
-                        && result.inlier_fraction >= self.config.verify_inlier_fraction
-                    {
+                    // Any frame trusted enough to be fused is a viewpoint
+                    // to search the map from; a keyframe's pose need not
+                    // have half its points matched (a frame turning
+                    // towards unmapped parts has fewer, and those are the
+                    // views a camera coming back shows again).
+                    if result.weak_directions == 0 {
                         self.keyframes
                             .learn(&self.frame.levels[LEVELS - 1].depth, &result.pose);
                     }
