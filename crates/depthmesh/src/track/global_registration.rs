@@ -19,8 +19,8 @@
 //! The map's points come from the map itself, seen from the keyframes'
 //! poses ([`MapFeatures::update`]): any back-end that renders depth can be
 //! searched, and the points are as good as the fused surface. Memory is
-//! bounded by [`MAX_MAP_CELLS`]; the cells are kept, so a keyframe learnt
-//! later adds its view without the others being seen again.
+//! bounded by [`MAX_MAP_CELLS`]. The map is described when the camera is
+//! first lost and again at a loss after new keyframes were learnt.
 
 use super::pyramid::{Level, Pyramid};
 use crate::camera::{Intrinsics, Pose};
@@ -436,14 +436,12 @@ fn rigid_fit(pairs: impl Iterator<Item = (Vec3, Vec3)> + Clone) -> Option<Pose> 
     pose.translation.is_finite().then_some(pose)
 }
 
-/// The map's surface as described points, grown view by view.
+/// The map's surface seen from the keyframes, as described points.
 #[derive(Clone, Debug, Default)]
 pub struct MapFeatures {
     cells: HashMap<u64, Cell>,
-    /// Keyframes whose views are in `cells`.
+    /// Keyframes whose views were described.
     views: usize,
-    /// Whether `cloud` is older than `cells`.
-    stale: bool,
     cloud: Cloud,
     /// The described points' descriptors, for nearest-neighbour search.
     tree: FeatureTree,
@@ -451,30 +449,25 @@ pub struct MapFeatures {
 }
 
 impl MapFeatures {
-    /// Adds the map's views from the keyframe poses not seen yet (`poses`
-    /// grows at the end; a shorter list starts over), rendered with `k`,
-    /// and describes the cloud again if it changed.
+    /// Describes the map's surface seen from `poses` (the keyframes'),
+    /// rendered with `k`, unless it was last described from as many:
+    /// keyframes are only ever added. Every view is rendered again, from
+    /// the map as it is now, so the description depends on the map and the
+    /// keyframes alone, not on when the camera was lost before: a run
+    /// resumed from a checkpoint finds what an uninterrupted one finds.
     pub fn update(&mut self, map: &dyn Mapper, poses: &[Pose], k: &Intrinsics) {
-        if poses.len() < self.views {
-            *self = MapFeatures::default();
+        if poses.len() == self.views {
+            return;
         }
-        for pose in &poses[self.views..] {
+        self.cells.clear();
+        for pose in poses {
             let depth = map.render_depth(k, pose);
             self.view.build(&depth, k, 1);
             accumulate(&self.view.levels[0], pose, &mut self.cells, MAX_MAP_CELLS);
-            self.stale = true;
         }
         self.views = poses.len();
-        if self.stale {
-            self.cloud.build(&self.cells);
-            self.tree.build(&self.cloud);
-            self.stale = false;
-        }
-    }
-
-    /// Forgets every view (the map was replaced).
-    pub fn clear(&mut self) {
-        *self = MapFeatures::default();
+        self.cloud.build(&self.cells);
+        self.tree.build(&self.cloud);
     }
 
     /// The described points of the map.

@@ -553,8 +553,9 @@ impl Tracker {
         still
     }
 
-    /// Describes the map's surface as seen from the keyframes not yet
-    /// described, for relocalisation by global registration
+    /// Describes the map's surface as seen from the keyframes, unless it
+    /// was described since the last keyframe was learnt, for
+    /// relocalisation by global registration
     /// ([`super::global_registration`]). Relocalising does this itself when
     /// needed; calling it first keeps that work out of the first attempt.
     pub fn describe_map(&mut self, map: &dyn Mapper) {
