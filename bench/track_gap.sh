@@ -3,10 +3,12 @@
 # folder of links to the other frames, numbers kept), so the camera
 # reappears 0.5-1 m from where it was last seen. Prints how far the camera
 # jumped, the frames lost after the gap (the tracker searches near its last
-# pose, then relocalises from its keyframes), and the whole trajectory's
-# error against the folder's poses (only the first pose given). Then the
+# pose, then relocalises by global registration against the map and from
+# its keyframes), and the whole trajectory's error against the folder's
+# poses (only the first pose given; also after rigid alignment). Then the
 # relocalisation alone: map from the frames before the gap, every query
-# frame relocalised with no prior (`depthmesh eval relocalise`).
+# frame relocalised with no prior (`depthmesh eval relocalise`, one line
+# per query frame with DEPTHMESH_VERBOSE=1).
 #
 # Usage: bench/track_gap.sh [BEFORE_END] [AFTER_START] [END]   (defaults 150 220 300)
 # Needs ../shared beside the repository (or DEPTHMESH_SHARED).
@@ -38,7 +40,10 @@ ate=$("$PY" "$shared/tools/trajectory_error.py" "$work/run/trajectory.txt" --fra
 python3 - "$work/run/summary.json" "$ate" <<'PY'
 import json, sys
 s = json.load(open(sys.argv[1])); ate = json.loads(sys.argv[2])
-print(f"tracked  {s['frames']} frames, {s['lost_frames']} lost ({s['lost']} events), ATE {ate['ate_rmse_cm']:.2f} cm (max {ate['max_cm']:.2f})")
+print(f"tracked  {s['frames']} frames, {s['lost_frames']} lost ({s['lost']} events), "
+      f"ATE {ate['ate_rmse_cm']:.2f} cm (max {ate['max_cm']:.2f}, after rigid alignment {ate['ate_rmse_aligned_cm']:.2f})")
 PY
 echo "relocalise: map 0..$before, queries $before..$end every 5th"
-./target/release/depthmesh eval relocalise "$data" --map-frames "0..$before" --query-frames "$before..$end" --stride 5
+verbose=()
+[[ ${DEPTHMESH_VERBOSE:-0} == 1 ]] && verbose=(--verbose)
+./target/release/depthmesh eval relocalise "$data" --map-frames "0..$before" --query-frames "$before..$end" --stride 5 "${verbose[@]}"

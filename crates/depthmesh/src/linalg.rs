@@ -1,8 +1,10 @@
 //! Small dense symmetric systems: the 6×6 normal equations of ICP and the
-//! 4×4 matrix of Horn's trajectory alignment.
+//! 4×4 matrix of Horn's rigid fit (trajectory alignment, relocalisation).
 //!
 //! Both are fixed-size and tiny, so plain arrays on the stack beat a general
 //! matrix library, and the code stays short enough to read as the textbook.
+
+use glam::{DMat3, DQuat, DVec3};
 
 /// Sweeps after which Jacobi stops; it converges quadratically, small
 /// matrices in f64 need well under ten.
@@ -132,6 +134,47 @@ fn rotate<const N: usize>(a: &mut [[f64; N]; N], v: &mut [[f64; N]; N], p: usize
         v[p][k] = c * vpk - s * vqk;
         v[q][k] = s * vpk + c * vqk;
     }
+}
+
+/// The rigid motion `(R, t)` minimising Σ‖R·e + t − r‖² over the pairs
+/// `(e, r)` (Horn 1987: the rotation is the dominant eigenvector of a
+/// symmetric 4×4 matrix built from the cross-covariance). The pairs are
+/// read twice, so an iterator over borrowed points costs no allocation.
+/// Without pairs the rotation is the identity and the translation not finite.
+pub fn horn(pairs: impl Iterator<Item = (DVec3, DVec3)> + Clone) -> (DMat3, DVec3) {
+    let (mut n, mut sum_e, mut sum_r) = (0.0, DVec3::ZERO, DVec3::ZERO);
+    for (e, r) in pairs.clone() {
+        n += 1.0;
+        sum_e += e;
+        sum_r += r;
+    }
+    let (mean_e, mean_r) = (sum_e / n, sum_r / n);
+    // s[i][j] = Σ e_i · r_j of the centred points.
+    let mut s = [[0.0; 3]; 3];
+    for (e, r) in pairs {
+        let (e, r) = ((e - mean_e).to_array(), (r - mean_r).to_array());
+        for (i, row) in s.iter_mut().enumerate() {
+            for (j, v) in row.iter_mut().enumerate() {
+                *v += e[i] * r[j];
+            }
+        }
+    }
+    let [[xx, xy, xz], [yx, yy, yz], [zx, zy, zz]] = s;
+    let m = [
+        [xx + yy + zz, yz - zy, zx - xz, xy - yx],
+        [yz - zy, xx - yy - zz, xy + yx, zx + xz],
+        [zx - xz, xy + yx, -xx + yy - zz, yz + zy],
+        [xy - yx, zx + xz, yz + zy, -xx - yy + zz],
+    ];
+    let (_, vectors) = symmetric_eigen(&m);
+    let [w, x, y, z] = vectors[3];
+    let q = DQuat::from_xyzw(x, y, z, w);
+    let rotation = if q.length() > 0.5 {
+        DMat3::from_quat(q.normalize())
+    } else {
+        DMat3::IDENTITY
+    };
+    (rotation, mean_r - rotation * mean_e)
 }
 
 #[cfg(test)]

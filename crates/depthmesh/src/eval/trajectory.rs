@@ -4,7 +4,7 @@
 
 use crate::camera::Pose;
 use crate::error::{Error, Result};
-use crate::linalg::symmetric_eigen;
+use crate::linalg::horn;
 use glam::{DMat3, DQuat, DVec3};
 
 /// How an estimated trajectory compares with a reference.
@@ -65,7 +65,7 @@ pub fn trajectory_error(
         .collect();
     let distances = centres.iter().map(|(e, r)| (*e - *r).length());
     let (sum2, max) = distances.fold((0.0, 0.0f64), |(s, m), d| (s + d * d, m.max(d)));
-    let (rotation, translation) = horn(&centres);
+    let (rotation, translation) = horn(centres.iter().copied());
     let aligned2: f64 = centres
         .iter()
         .map(|(e, r)| (rotation * *e + translation - *r).length_squared())
@@ -96,41 +96,6 @@ pub fn trajectory_error(
         rpe_translation: (rpe_t / steps).sqrt(),
         rpe_rotation_degrees: (rpe_r / steps).sqrt(),
     })
-}
-
-/// The rigid motion `(R, t)` minimising Σ‖R·e + t − r‖² over the pairs
-/// `(e, r)` (Horn 1987: the rotation is the dominant eigenvector of a
-/// symmetric 4×4 matrix built from the cross-covariance).
-fn horn(pairs: &[(DVec3, DVec3)]) -> (DMat3, DVec3) {
-    let n = pairs.len() as f64;
-    let mean_e = pairs.iter().map(|p| p.0).sum::<DVec3>() / n;
-    let mean_r = pairs.iter().map(|p| p.1).sum::<DVec3>() / n;
-    // s[i][j] = Σ e_i · r_j of the centred points.
-    let mut s = [[0.0; 3]; 3];
-    for (e, r) in pairs {
-        let (e, r) = ((*e - mean_e).to_array(), (*r - mean_r).to_array());
-        for (i, row) in s.iter_mut().enumerate() {
-            for (j, v) in row.iter_mut().enumerate() {
-                *v += e[i] * r[j];
-            }
-        }
-    }
-    let [[xx, xy, xz], [yx, yy, yz], [zx, zy, zz]] = s;
-    let m = [
-        [xx + yy + zz, yz - zy, zx - xz, xy - yx],
-        [yz - zy, xx - yy - zz, xy + yx, zx + xz],
-        [zx - xz, xy + yx, -xx + yy - zz, yz + zy],
-        [xy - yx, zx + xz, yz + zy, -xx - yy + zz],
-    ];
-    let (_, vectors) = symmetric_eigen(&m);
-    let [w, x, y, z] = vectors[3];
-    let q = DQuat::from_xyzw(x, y, z, w);
-    let rotation = if q.length() > 0.5 {
-        DMat3::from_quat(q.normalize())
-    } else {
-        DMat3::IDENTITY
-    };
-    (rotation, mean_r - rotation * mean_e)
 }
 
 #[cfg(test)]

@@ -2,13 +2,15 @@
 //! against the map's prediction from the last good pose, solving only for
 //! the directions the view constrains ([`super::degeneracy`]); a frame that
 //! contradicts the map is reported lost and never used, and the camera is
-//! then searched for near where it was and, failing that, from the
-//! keyframes most like the frame ([`super::ferns`]), every candidate pose
-//! verified against the map before it is accepted.
+//! then searched for near where it was and, failing that, by global
+//! registration against the map's surface ([`super::global_registration`])
+//! and from the keyframes most like the frame ([`super::ferns`]), every
+//! candidate pose verified against the map before it is accepted.
 
 use super::degeneracy::{Directions, Weak};
 use super::ferns::{FernConfig, Keyframes};
 use super::filter::{Bilateral, BilateralParams};
+use super::global_registration::{GlobalRegistration, MapFeatures};
 use super::icp::{agreement, apply_motion, equations, Association, Equations};
 use super::pyramid::{half, Pyramid};
 use crate::camera::{Intrinsics, Pose};
@@ -38,6 +40,11 @@ const SAME_CANDIDATE: f32 = 0.05;
 /// [`TrackerConfig::weak_conditioning`] are not solved for even while
 /// iterating: they are numerically singular (a plane's in-plane motion).
 const SINGULAR: f64 = 0.01;
+
+/// Candidate poses from global registration refined and verified per
+/// relocalisation: the right pose is nearly always among the best few
+/// supported, and each costs a model view and an ICP run.
+const GLOBAL_CANDIDATES: usize = 3;
 
 /// ICP iterations per level, at most: more is a mistake, not a setting.
 const MAX_ITERATIONS: usize = 100;
@@ -333,6 +340,10 @@ pub struct Tracker {
     /// far, so the coarsest level gets more iterations.
     velocity_known: bool,
     keyframes: Keyframes,
+    /// The map's surface seen from the keyframes, described for global
+    /// registration; made when first needed, grown as keyframes are learnt.
+    map_features: MapFeatures,
+    registration: GlobalRegistration,
 }
 
 impl Tracker {
@@ -354,6 +365,8 @@ impl Tracker {
         Ok(Tracker {
             filter: config.bilateral.map(Bilateral::new).transpose()?,
             keyframes: Keyframes::new(config.relocalisation)?,
+            map_features: MapFeatures::default(),
+            registration: GlobalRegistration::default(),
             model_intrinsics,
             fallback_intrinsics: (finer != model_intrinsics).then_some(finer),
             config,
@@ -540,16 +553,80 @@ impl Tracker {
         still
     }
 
-    /// ICP from the poses of the keyframes most like the prepared frame,
-    /// each against the map's view from that pose; the verified result
-    /// with the most inliers, or the first failure.
+    /// Describes the map's surface as seen from the keyframes, unless it
+    /// was described since the last keyframe was learnt, for
+    /// relocalisation by global registration
+    /// ([`super::global_registration`]). Relocalising does this itself when
+    /// needed; calling it first keeps that work out of the first attempt.
+    pub fn describe_map(&mut self, map: &dyn Mapper) {
+        let (_, poses) = self.keyframes.saved();
+        self.map_features.update(map, poses, &self.model_intrinsics);
+    }
+
+    /// Relocalises the prepared frame: first by global registration
+    /// against the map's described surface, which needs no keyframe near
+    /// the camera, then, if no candidate from it is verified, from the
+    /// keyframes most like the frame.
     fn relocalise_prepared(&mut self, map: &dyn Mapper) -> Tracked {
-        let candidates = self.keyframes.nearest(&self.frame.levels[LEVELS - 1].depth);
-        let mut tried: Vec<Pose> = Vec::with_capacity(candidates.len());
+        self.describe_map(map);
+        // The coarsest frame level at least as wide as the model view: the
+        // map's points were seen at that resolution.
+        let level = (0..LEVELS)
+            .rev()
+            .find(|&l| self.frame.levels[l].size().0 >= self.model_intrinsics.width as usize)
+            .unwrap_or(0);
+        let global: Vec<Pose> = self
+            .registration
+            .candidates(
+                &self.frame.levels[level],
+                &self.map_features,
+                GLOBAL_CANDIDATES,
+            )
+            .iter()
+            .map(|c| c.pose)
+            .collect();
+        let mut tried =
+            Vec::with_capacity(GLOBAL_CANDIDATES + self.config.relocalisation.candidates);
+        // Candidates come best supported first, and the first one verified
+        // is taken: verification, not the ranking, guards against a wrong
+        // pose, and each further candidate costs a model view and ICP.
+        let found = self.relocalise_from(&global, &mut tried, true, map);
+        if found.lost.is_none() {
+            return found;
+        }
+        let keyframes: Vec<Pose> = self
+            .keyframes
+            .nearest(&self.frame.levels[LEVELS - 1].depth)
+            .into_iter()
+            .map(|(pose, _)| pose)
+            .collect();
+        let mut result = self.relocalise_from(&keyframes, &mut tried, false, map);
+        result.iterations += found.iterations;
+        if result.lost.is_some() && result.iterations == found.iterations {
+            // Nothing new was tried: the first failure is the global one's.
+            return Tracked {
+                iterations: result.iterations,
+                ..found
+            };
+        }
+        result
+    }
+
+    /// ICP from each of `candidates` not within [`SAME_CANDIDATE`] of one
+    /// in `tried` (which they join), each against the map's view from that
+    /// pose; the verified result with the most inliers (the first verified
+    /// one if `first`), or the first failure.
+    fn relocalise_from(
+        &mut self,
+        candidates: &[Pose],
+        tried: &mut Vec<Pose>,
+        first: bool,
+        map: &dyn Mapper,
+    ) -> Tracked {
         let mut best: Option<Tracked> = None;
         let mut first_failure = Tracked::empty(self.last_good);
         let mut iterations = 0;
-        for (pose, _) in candidates {
+        for &pose in candidates {
             let seen = tried.iter().any(|p| {
                 let d = p.inverse().compose(&pose);
                 d.translation.length() < SAME_CANDIDATE && d.rotation_angle() < SAME_CANDIDATE
@@ -571,6 +648,9 @@ impl Tracker {
                 None => {}
                 Some(_) if first_failure.iterations == 0 => first_failure = t,
                 Some(_) => {}
+            }
+            if first && best.is_some() {
+                break;
             }
         }
         let mut result = match best {
@@ -719,9 +799,12 @@ impl Tracker {
                 if self.lost_streak == 0 {
                     self.velocity = self.last_good.inverse().compose(&result.pose);
                     self.velocity_known = true;
-                    if result.weak_directions == 0
-                        && result.inlier_fraction >= self.config.verify_inlier_fraction
-                    {
+                    // Any frame trusted enough to be fused is a viewpoint
+                    // to search the map from; a keyframe's pose need not
+                    // have half its points matched (a frame turning
+                    // towards unmapped parts has fewer, and those are the
+                    // views a camera coming back shows again).
+                    if result.weak_directions == 0 {
                         self.keyframes
                             .learn(&self.frame.levels[LEVELS - 1].depth, &result.pose);
                     }
@@ -741,7 +824,7 @@ impl Tracker {
 }
 
 #[cfg(test)]
-mod tests {
+pub(super) mod tests {
     use super::*;
     use crate::sim::{NoiseModel, Scene, SceneOptions, SimulatedSensor};
     use glam::Vec3;
@@ -803,10 +886,10 @@ mod tests {
 
     /// A map that is the scene itself, blind in views narrower than
     /// `blind_below` pixels.
-    pub(super) struct SceneMap<'a> {
-        pub(super) scene: &'a Scene,
-        pub(super) blind_below: u32,
-        pub(super) mesh: crate::mesh::Mesh,
+    pub(in crate::track) struct SceneMap<'a> {
+        pub(in crate::track) scene: &'a Scene,
+        pub(in crate::track) blind_below: u32,
+        pub(in crate::track) mesh: crate::mesh::Mesh,
     }
 
     impl Mapper for SceneMap<'_> {
@@ -1158,10 +1241,55 @@ translation = [0.2, 0.225, -0.1]
         Pose::look_at(eye, Vec3::new(0.0, 0.4, 0.0), Vec3::Y)
     }
 
+    /// Tracks the frames seen from `poses` in `scene` (the map), all of
+    /// them; the camera then jumps 0.5–1 m to `next`.
+    fn track_before_jump(
+        sensor: &mut SimulatedSensor,
+        scene: &Scene,
+        poses: &[Pose],
+        next: Pose,
+    ) -> Tracker {
+        let last = poses[poses.len() - 1];
+        let jump = last.translation.distance(next.translation);
+        assert!((0.5..=1.0).contains(&jump), "{jump}");
+        let map = scene_map(scene);
+        let mut tracker =
+            Tracker::new(TrackerConfig::default(), sensor.intrinsics, poses[0]).unwrap();
+        for (i, pose) in poses.iter().enumerate().skip(1) {
+            let t = tracker.track(&sensor.capture(scene, i as u32, pose).depth, &map);
+            assert_eq!(t.lost, None, "frame {i}");
+        }
+        tracker
+    }
+
+    /// Tracks the frames seen from `poses` in `scene` (the map) after a
+    /// jump: how many are lost before the camera is found again. Once found
+    /// it must stay found, and whatever is accepted must be right (2 cm, 1°:
+    /// a few times the tracking error, far below a wrong basin).
+    fn frames_until_found(
+        tracker: &mut Tracker,
+        sensor: &mut SimulatedSensor,
+        scene: &Scene,
+        poses: &[Pose],
+    ) -> usize {
+        let map = scene_map(scene);
+        let mut found_at = None;
+        for (i, pose) in poses.iter().enumerate() {
+            let t = tracker.track(&sensor.capture(scene, 100 + i as u32, pose).depth, &map);
+            if t.lost.is_some() {
+                assert!(found_at.is_none(), "lost again at {i}: {:?}", t.lost);
+                continue;
+            }
+            let (dt, dr) = error(&t.pose, pose);
+            assert!(dt < 0.02 && dr < 1.0, "frame {i}: {dt} m, {dr}°");
+            found_at.get_or_insert(i);
+        }
+        found_at.expect("never found again")
+    }
+
     #[test]
     fn a_camera_that_jumps_is_found_again_within_ten_frames() {
         let room = scene(ROOM);
-        let map = scene_map(&room);
         let k = Intrinsics::from_vertical_fov(320, 240, 60.0);
         let mut sensor = SimulatedSensor::new(k, 0.4, 6.0, NoiseModel::Kinect, 3).unwrap();
         // 2° (7 cm) a frame out to 80°; the frames while the camera goes
@@ -1171,28 +1299,53 @@ translation = [0.2, 0.225, -0.1]
         let back: Vec<Pose> = (0..12)
             .map(|i| around_room(60.0 - 2.0 * i as f32))
             .collect();
-        let jump = out[40].translation.distance(back[0].translation);
-        assert!((0.5..=1.0).contains(&jump), "{jump}");
-        let mut tracker = Tracker::new(TrackerConfig::default(), k, out[0]).unwrap();
-        for (i, pose) in out.iter().enumerate().skip(1) {
-            let t = tracker.track(&sensor.capture(&room, i as u32, pose).depth, &map);
-            assert_eq!(t.lost, None, "frame {i}");
-        }
+        let mut tracker = track_before_jump(&mut sensor, &room, &out, back[0]);
         assert!(tracker.keyframes() > 1);
-        let mut found_at = None;
+        let found_at = frames_until_found(&mut tracker, &mut sensor, &room, &back);
+        assert!(found_at < 10, "found after {found_at} frames");
+    }
+
+    /// A camera `radius` from the room's centre at `height`, `degrees`
+    /// around, looking at `target`.
+    fn in_room(degrees: f32, radius: f32, height: f32, target: Vec3) -> Pose {
+        let a = degrees.to_radians();
+        let eye = Vec3::new(radius * a.cos(), height, radius * a.sin());
+        Pose::look_at(eye, target, Vec3::Y)
+    }
+
+    #[test]
+    fn a_camera_that_jumps_away_from_every_keyframe_is_found_again_within_ten_frames() {
+        let room = scene(ROOM);
+        let k = Intrinsics::from_vertical_fov(320, 240, 60.0);
+        let mut sensor = SimulatedSensor::new(k, 0.4, 6.0, NoiseModel::Kinect, 11).unwrap();
+        // Around the room at 2 m and 1.3 m high, 2° (7 cm) a frame out to
+        // 80°; then, the frames in between dropped, the camera is next seen
+        // closer, higher and turned 40° towards the wall on its left, and
+        // moves on sideways.
+        let target = Vec3::new(0.0, 0.4, 0.0);
+        let out: Vec<Pose> = (0..=40)
+            .map(|i| in_room(2.0 * i as f32, 2.0, 1.3, target))
+            .collect();
+        let wall = Vec3::new(-2.5, 0.8, 0.0);
+        let back: Vec<Pose> = (0..12)
+            .map(|i| {
+                let eye = Vec3::new(0.6 + 0.03 * i as f32, 1.6, 1.4 - 0.05 * i as f32);
+                Pose::look_at(eye, wall, Vec3::Y)
+            })
+            .collect();
+        let mut tracker = track_before_jump(&mut sensor, &room, &out, back[0]);
+        // No keyframe is within ICP's reach of where the camera reappears:
+        // finding it takes more than ICP from the keyframes.
         for (i, pose) in back.iter().enumerate() {
-            let t = tracker.track(&sensor.capture(&room, 100 + i as u32, pose).depth, &map);
-            if t.lost.is_some() {
-                assert!(found_at.is_none(), "lost again at {i}: {:?}", t.lost);
-                continue;
+            for key in &tracker.state().keyframe_poses {
+                let (dt, dr) = error(key, pose);
+                assert!(
+                    dt > 0.3 || dr > 20.0,
+                    "frame {i} near a keyframe: {dt} m {dr}°"
+                );
             }
-            // Whatever is accepted is right (2 cm, 1°: a few times the
-            // tracking error, far below a wrong basin).
-            let (dt, dr) = error(&t.pose, pose);
-            assert!(dt < 0.02 && dr < 1.0, "frame {i}: {dt} m, {dr}°");
-            found_at.get_or_insert(i);
         }
-        let found_at = found_at.expect("never found again");
+        let found_at = frames_until_found(&mut tracker, &mut sensor, &room, &back);
         assert!(found_at < 10, "found after {found_at} frames");
     }
 
