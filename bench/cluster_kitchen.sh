@@ -4,7 +4,8 @@
 #
 # 1. Throughput: the frames published first (sensor a, then b, as fast as
 #    the bus takes them), then fused by 1 and by 2 workers, each with
-#    rayon's threads and with one thread per worker; frames/s from the
+#    rayon's threads on both cores, and each pinned to a core of its own
+#    (taskset, one rayon thread); frames/s from the
 #    first frame published to the map fetched with every frame fused
 #    (`cluster fetch --wait`). Each fetched map is compared with
 #    `reconstruct` of the same frames (the sensors in folder order).
@@ -37,9 +38,11 @@ now() { date +%s.%N; }
 publish() { # site sensor range rate -> JSON summary
   "$dm" stream "$data" --frames "$3" --nats "$url" --site "$1" --sensor "$2" --rate "$4" --codec "$codec" --quiet
 }
-workers() { # site count threads -> starts them
+workers() { # site count cores -> starts them (cores 0: rayon's threads on every core; 1: each on a core of its own)
   for i in $(seq "$2"); do
-    RAYON_NUM_THREADS=$3 "$dm" cluster worker --nats "$url" --site "$1" --name "w$i" --lease-seconds 2 \
+    pin=()
+    [[ $3 == 1 ]] && pin=(taskset -c $((i - 1)))
+    RAYON_NUM_THREADS=$3 "${pin[@]}" "$dm" cluster worker --nats "$url" --site "$1" --name "w$i" --lease-seconds 2 \
       > "$work/$1-w$i.log" 2>&1 &
   done
 }
@@ -79,7 +82,7 @@ PY
 }
 
 "$dm" reconstruct "$data" --frames "0..$frames" --out "$work/reconstruct" --quiet
-echo "| workers | threads each | frames/s | = reconstruct (triangles) | frames fused once |"
+echo "| workers | cores each | frames/s | = reconstruct (triangles) | frames fused once |"
 echo "|---|---|---|---|---|"
 declare -A fps
 for setup in "1 0" "2 0" "1 1" "2 1"; do
@@ -96,9 +99,9 @@ for setup in "1 0" "2 0" "1 1" "2 1"; do
   wait $(jobs -p | grep -v "^$nats_pid$") 2> /dev/null || true
   fps[$setup]=$(python3 -c "print(f'{$frames / ($end - $start):.1f}')")
   once=$(python3 -c "import json; r = json.load(open('$work/$site.json')); print(r['every_frame_fused_once'], r['frames_fused_min'], '/', r['frames_in_stream'])")
-  echo "| $count | ${threads/#0/all} | ${fps[$setup]} | $(same_triangles "$work/$site.ply" "$work/reconstruct/mesh.ply") | $once |"
+  echo "| $count | ${threads/#0/both (shared)} | ${fps[$setup]} | $(same_triangles "$work/$site.ply" "$work/reconstruct/mesh.ply") | $once |"
 done
-python3 -c "print(f'two workers over one: {${fps[2 0]} / ${fps[1 0]}:.2f}x with every thread, {${fps[2 1]} / ${fps[1 1]}:.2f}x with one thread each')"
+python3 -c "print(f'two workers over one: {${fps[2 0]} / ${fps[1 0]}:.2f}x sharing both cores, {${fps[2 1]} / ${fps[1 1]}:.2f}x on a core each')"
 
 site=failover
 workers "$site" 3 0

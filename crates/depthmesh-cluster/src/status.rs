@@ -53,7 +53,8 @@ pub struct Status {
     pub workers: Vec<Heartbeat>,
     /// Live trackers.
     pub trackers: Vec<TrackerBeat>,
-    /// Frames per second, summed over the workers.
+    /// Frames per second of the slowest worker: every worker reads every
+    /// frame, so the slowest sets the site's pace.
     pub frames_per_second: f64,
     /// Every shard.
     pub shards: Vec<ShardStatus>,
@@ -105,7 +106,11 @@ pub async fn status(site: &Site) -> Result<Status> {
         site: site.name.clone(),
         settings: config,
         stream_last,
-        frames_per_second: workers.iter().map(|w| w.frames_per_second).sum(),
+        frames_per_second: workers
+            .iter()
+            .map(|w| w.frames_per_second)
+            .reduce(f64::min)
+            .unwrap_or(0.0),
         workers,
         trackers,
         shards,
