@@ -13,6 +13,7 @@
 
 use crate::error::{ClusterError, Result};
 use async_nats::jetstream::{self, kv, object_store, stream};
+use depthmesh::session::{MapConfig, TsdfSettings};
 use depthmesh::tsdf::regions::Regions;
 use depthmesh::tsdf::TsdfConfig;
 use depthmesh::Intrinsics;
@@ -48,6 +49,17 @@ impl SiteConfig {
         c.max_weight = self.max_weight;
         c.min_weight = self.min_weight;
         c
+    }
+
+    /// The site's TSDF as a session's map (a tracker's own map, a viewer's
+    /// copy of the site's).
+    pub fn map(&self) -> MapConfig {
+        MapConfig::Tsdf(TsdfSettings {
+            config: self.tsdf(),
+            range: (self.depth_min, self.depth_max),
+            remesh_every: 0,
+            active_radius: None,
+        })
     }
 
     /// Checks every number.

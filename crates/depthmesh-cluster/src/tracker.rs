@@ -18,7 +18,7 @@ use crate::site::Site;
 use async_nats::jetstream::kv;
 use async_nats::jetstream::stream::RawMessageErrorKind;
 use async_nats::HeaderMap;
-use depthmesh::session::{MapConfig, Session, SessionConfig, TsdfSettings};
+use depthmesh::session::{Session, SessionConfig};
 use depthmesh::track::TrackerConfig;
 use depthmesh::Frame;
 use depthmesh_server::protocol::FrameMessage;
@@ -209,12 +209,7 @@ async fn claim(site: &Site, options: &TrackerOptions) -> Result<Option<Tracking>
         })?;
         let session = Session::new(SessionConfig {
             intrinsics: camera,
-            map: MapConfig::Tsdf(TsdfSettings {
-                config: config.tsdf(),
-                range: (config.depth_min, config.depth_max),
-                remesh_every: 0,
-                active_radius: None,
-            }),
+            map: config.map(),
             tracking: Some(options.tracking.clone()),
         })?;
         let published_up_to = last_posed_index(site, &sensor).await?;

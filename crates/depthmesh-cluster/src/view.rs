@@ -10,7 +10,7 @@ use crate::error::Result;
 use crate::fetch::frames_by_sensor;
 use crate::site::Site;
 use crate::status::status;
-use depthmesh::session::{Backend, MapConfig, Session, SessionConfig, TsdfSettings};
+use depthmesh::session::{Backend, Session, SessionConfig};
 use depthmesh_server::Server;
 use serde_json::json;
 use std::sync::atomic::{AtomicBool, Ordering};
@@ -37,12 +37,7 @@ pub async fn follow(site: &Site, server: &Server, stop: &AtomicBool) -> Result<(
     };
     let mut session = Session::new(SessionConfig {
         intrinsics: camera,
-        map: MapConfig::Tsdf(TsdfSettings {
-            config: config.tsdf(),
-            range: (config.depth_min, config.depth_max),
-            remesh_every: 0,
-            active_radius: None,
-        }),
+        map: config.map(),
         tracking: None,
     })?;
     let name = format!("site-{}", site.name);
