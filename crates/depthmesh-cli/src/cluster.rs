@@ -50,6 +50,17 @@ pub struct SiteArgs {
 }
 
 impl SiteArgs {
+    /// The site if it exists (for commands that only read it).
+    async fn open(&self) -> Result<Site> {
+        if self.lease_seconds.is_some() {
+            bail!("--lease-seconds is set by a worker, not by a command that reads the site");
+        }
+        Site::open(&self.nats, &self.site)
+            .await
+            .with_context(|| format!("site {} on {}", self.site, self.nats))
+    }
+
+    /// The site, made if it does not exist yet.
     async fn connect(&self) -> Result<Site> {
         let lease = match self.lease_seconds {
             Some(s) if s.is_finite() && s > 0.0 => Some(Duration::from_secs_f64(s)),
@@ -159,7 +170,7 @@ pub fn run(command: &ClusterCommand, quiet: bool) -> Result<()> {
             ClusterCommand::Worker(args) => worker(args).await,
             ClusterCommand::Fetch(args) => fetch(args).await,
             ClusterCommand::Status(args) => {
-                let site = args.connect().await?;
+                let site = args.open().await?;
                 let status = depthmesh_cluster::status::status(&site).await?;
                 println!("{}", serde_json::to_string_pretty(&status)?);
                 Ok(())
@@ -251,7 +262,7 @@ async fn fetch(args: &FetchArgs) -> Result<()> {
     if !(args.timeout.is_finite() && args.timeout > 0.0) {
         bail!("--timeout must be a positive number of seconds");
     }
-    let site = args.site.connect().await?;
+    let site = args.site.open().await?;
     let wait = args.wait.then(|| Duration::from_secs_f64(args.timeout));
     let (mesh, report) = depthmesh_cluster::fetch::fetch(&site, wait).await?;
     write_mesh(&args.output, &mesh)?;
@@ -260,7 +271,7 @@ async fn fetch(args: &FetchArgs) -> Result<()> {
 }
 
 async fn replay(args: &ReplayArgs, quiet: bool) -> Result<()> {
-    let site = args.site.connect().await?;
+    let site = args.site.open().await?;
     site.settle_config(&args.map.config()?).await?;
     let bar = progress::bar(0, "replay", quiet);
     let (mesh, report) = depthmesh_cluster::fetch::replay(&site, |seq, last| {

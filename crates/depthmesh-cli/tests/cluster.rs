@@ -12,7 +12,7 @@ mod common;
 
 use common::nats::NatsServer;
 use common::served::{Served, TOKEN};
-use common::{depthmesh, ok, scratch, simulated_frames_folder};
+use common::{assert_fails_with, depthmesh, ok, scratch, simulated_frames_folder};
 use depthmesh::mesh::ply::read_ply;
 use std::path::{Path, PathBuf};
 use std::process::{Child, Command, Output, Stdio};
@@ -344,4 +344,59 @@ fn a_sensor_without_poses_is_tracked_once_even_when_its_tracker_dies() {
         "{report}"
     );
     drop((worker, trackers));
+}
+
+#[test]
+#[ignore = "needs nats-server: run by .ci/cluster"]
+fn what_a_site_cannot_take_is_refused_saying_what() {
+    let (dir, frames, nats) = setup("cluster-refusals", 2);
+    let url = nats.url.as_str();
+    let f = frames.to_str().unwrap();
+    assert_fails_with(
+        &depthmesh(&[
+            "cluster", "fetch", "--nats", url, "--site", "none", "-o", "x.ply",
+        ]),
+        &["site none", "no such site"],
+    );
+    assert_fails_with(
+        &depthmesh(&["cluster", "status", "--nats", url, "--site", "a.b"]),
+        &["a.b", "letters, digits"],
+    );
+    ok(&depthmesh(&[
+        "stream", f, "--nats", url, "--site", "s", "--sensor", "a", "--rate", "max", "--quiet",
+    ]));
+    assert_fails_with(
+        &depthmesh(&[
+            "stream",
+            f,
+            "--nats",
+            url,
+            "--site",
+            "s",
+            "--sensor",
+            "a",
+            "--rate",
+            "max",
+            "--intrinsics",
+            "100,100,80,60",
+            "--quiet",
+        ]),
+        &["sensor a was published with another camera"],
+    );
+    // The first worker sets the site's settings; one with others is refused.
+    let log = dir.join("w1.log");
+    let w1 = spawn(
+        &[
+            "cluster", "worker", "--nats", url, "--site", "s", "--name", "w1",
+        ],
+        &log,
+    );
+    fetch(&dir, url, "s");
+    assert_fails_with(
+        &depthmesh(&[
+            "cluster", "worker", "--nats", url, "--site", "s", "--voxel", "0.02",
+        ]),
+        &["site s", "other settings", "voxel is 0.01 there, 0.02 here"],
+    );
+    drop(w1);
 }

@@ -82,16 +82,27 @@ impl SiteConfig {
 
     /// What differs between `self` and `other`, for a refusal.
     fn differences(&self, other: &SiteConfig) -> String {
-        let a = serde_json::to_value(self).unwrap_or_default();
-        let b = serde_json::to_value(other).unwrap_or_default();
-        let (Some(a), Some(b)) = (a.as_object(), b.as_object()) else {
-            return String::new();
-        };
-        a.iter()
-            .filter(|(k, v)| b.get(*k) != Some(v))
-            .map(|(k, v)| format!("{k} is {} there, {v} here", b[k]))
+        self.fields()
+            .into_iter()
+            .zip(other.fields())
+            .filter(|((_, a), (_, b))| a != b)
+            .map(|((name, here), (_, there))| format!("{name} is {there} there, {here} here"))
             .collect::<Vec<_>>()
             .join(", ")
+    }
+
+    /// Each setting by name, as a person writes it.
+    fn fields(&self) -> [(&'static str, String); 8] {
+        [
+            ("voxel", self.voxel.to_string()),
+            ("truncation", self.truncation.to_string()),
+            ("max_weight", self.max_weight.to_string()),
+            ("min_weight", self.min_weight.to_string()),
+            ("depth_min", self.depth_min.to_string()),
+            ("depth_max", self.depth_max.to_string()),
+            ("region_blocks", self.regions.region_blocks.to_string()),
+            ("shards", self.regions.shards.to_string()),
+        ]
     }
 }
 
@@ -130,12 +141,7 @@ impl Site {
     /// how long a shard's lease and a worker's heartbeat live unrenewed;
     /// `None` keeps the site's (10 s for a new site).
     pub async fn connect(url: &str, name: &str, lease: Option<Duration>) -> Result<Site> {
-        if !valid_session_name(name) {
-            return Err(ClusterError::site(
-                name,
-                "a site name is 1 to 64 letters, digits, '-' or '_'",
-            ));
-        }
+        check_name(name)?;
         if lease.is_some_and(|l| l < Duration::from_millis(500)) {
             return Err(depthmesh::Error::parameter(
                 "lease",
@@ -191,6 +197,26 @@ impl Site {
             checkpoints,
             lease_ttl,
         })
+    }
+
+    /// Opens site `name` on the bus at `url` if it exists (frames were
+    /// published to it or a worker ran), without creating anything.
+    pub async fn open(url: &str, name: &str) -> Result<Site> {
+        check_name(name)?;
+        let client = async_nats::connect(url)
+            .await
+            .map_err(|e| ClusterError::bus(&format!("cannot connect to {url}"), e))?;
+        if jetstream::new(client)
+            .get_stream(format!("DM_{name}"))
+            .await
+            .is_err()
+        {
+            return Err(ClusterError::site(
+                name,
+                format!("no such site on {url}: nothing was published to it and no worker ran"),
+            ));
+        }
+        Site::connect(url, name, None).await
     }
 
     /// Reads the site's lease time again: a worker started with
@@ -334,6 +360,18 @@ impl Site {
             .map_err(|e| ClusterError::bus("cannot read the stream's state", e))?;
         Ok(info.state.last_sequence)
     }
+}
+
+/// A site's name becomes part of subjects and bucket names: letters,
+/// digits, '-' and '_' only.
+fn check_name(name: &str) -> Result<()> {
+    if valid_session_name(name) {
+        return Ok(());
+    }
+    Err(ClusterError::site(
+        name,
+        "a site name is 1 to 64 letters, digits, '-' or '_'",
+    ))
 }
 
 /// Opens the key-value bucket `bucket` (one value per key, entries that
