@@ -4,18 +4,15 @@
 
 use crate::error::{ClusterError, Result};
 use crate::site::Site;
-use depthmesh::codec::{Codec, Decoder, RawDepth};
 use depthmesh::{DepthImage, Intrinsics, Pose};
-use depthmesh_server::protocol::FrameMessage;
+use depthmesh_server::protocol::{DepthReader, FrameMessage};
 use std::collections::HashMap;
 
 /// Reads frame messages into depth images, reusing its buffers, and keeps
 /// the sensors' cameras it has looked up.
 #[derive(Default)]
 pub struct FrameReader {
-    decoders: Vec<(Codec, Decoder)>,
-    raw: RawDepth,
-    depth: DepthImage,
+    depth: DepthReader,
     cameras: HashMap<String, Intrinsics>,
 }
 
@@ -27,7 +24,8 @@ pub struct ReadFrame<'a> {
     pub timestamp: f64,
     /// Where it was taken from, when known.
     pub pose: Option<Pose>,
-    /// Its depth in metres, outside the site's range set to 0.
+    /// Its depth in metres, outside the site's range set to 0 (taken out
+    /// to make a frame, it is given back with [`FrameReader::put_back`]).
     pub depth: &'a mut DepthImage,
     /// The sensor's camera.
     pub camera: Intrinsics,
@@ -57,35 +55,18 @@ impl FrameReader {
     ) -> Result<ReadFrame<'_>, String> {
         let msg = FrameMessage::decode(payload).map_err(|e| e.to_string())?;
         let pixels = u64::from(camera.width) * u64::from(camera.height);
-        let decoder = match self.decoders.iter_mut().position(|(c, _)| *c == msg.codec) {
-            Some(i) => &mut self.decoders[i].1,
-            None => {
-                self.decoders
-                    .push((msg.codec, Decoder::new(msg.codec, pixels)));
-                &mut self.decoders.last_mut().expect("just pushed").1
-            }
-        };
-        decoder
-            .decode_into(&msg.payload, &mut self.raw)
-            .map_err(|e| format!("frame {}: {e}", msg.index))?;
-        if (self.raw.width(), self.raw.height()) != (camera.width, camera.height) {
-            return Err(format!(
-                "frame {}: {}×{} but the sensor's camera is {}×{}",
-                msg.index,
-                self.raw.width(),
-                self.raw.height(),
-                camera.width,
-                camera.height
-            ));
-        }
-        self.raw.to_metres(&mut self.depth);
-        self.depth.clamp_range(range.0, range.1);
+        let depth = self.depth.read(&msg, &camera, range, pixels)?;
         Ok(ReadFrame {
             index: msg.index,
             timestamp: msg.timestamp,
             pose: msg.pose,
-            depth: &mut self.depth,
+            depth,
             camera,
         })
+    }
+
+    /// Gives back a depth image taken out of a [`ReadFrame`].
+    pub fn put_back(&mut self, depth: DepthImage) {
+        self.depth.put_back(depth);
     }
 }

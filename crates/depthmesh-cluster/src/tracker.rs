@@ -290,7 +290,7 @@ async fn step(
             pose: frame.pose,
         };
         let pose = t.session.push(&input).map(|o| o.record.pose);
-        *frame.depth = input.depth;
+        reader.put_back(input.depth);
         Ok(pose?.map(|p| (index, p)))
     })?;
     beat.frames += 1;

@@ -22,8 +22,8 @@
 //! `f32`s the library holds, so a streamed session maps exactly what an
 //! offline run maps.
 
-use depthmesh::codec::Codec;
-use depthmesh::{Intrinsics, Pose};
+use depthmesh::codec::{Codec, Decoder, RawDepth};
+use depthmesh::{DepthImage, Intrinsics, Pose};
 use glam::{Mat3, Vec3};
 use serde::{Deserialize, Serialize};
 use std::fmt;
@@ -227,6 +227,65 @@ impl FrameMessage {
             codec,
             payload: r.0.to_vec(),
         })
+    }
+}
+
+/// Depth images read from frame messages, with a decoder per codec and
+/// every buffer kept from frame to frame.
+#[derive(Debug, Default)]
+pub struct DepthReader {
+    decoders: Vec<(Codec, Decoder)>,
+    raw: RawDepth,
+    depth: DepthImage,
+}
+
+impl DepthReader {
+    /// `msg`'s depth in metres for camera `k` (at most `max_pixels`),
+    /// depths outside `range` dropped as the dataset readers drop them. An
+    /// image that does not decode, or not to the camera's size, is an error
+    /// naming the frame.
+    pub fn read(
+        &mut self,
+        msg: &FrameMessage,
+        k: &Intrinsics,
+        range: (f32, f32),
+        max_pixels: u64,
+    ) -> Result<&mut DepthImage, String> {
+        let decoder = match self.decoders.iter().position(|(c, _)| *c == msg.codec) {
+            Some(i) => &mut self.decoders[i].1,
+            None => {
+                self.decoders
+                    .push((msg.codec, Decoder::new(msg.codec, max_pixels)));
+                &mut self.decoders.last_mut().expect("just pushed").1
+            }
+        };
+        decoder
+            .decode_into(&msg.payload, &mut self.raw)
+            .map_err(|e| format!("frame {}: {e}", msg.index))?;
+        if (self.raw.width(), self.raw.height()) != (k.width, k.height) {
+            return Err(format!(
+                "frame {}: depth image is {}×{} but the intrinsics say {}×{}",
+                msg.index,
+                self.raw.width(),
+                self.raw.height(),
+                k.width,
+                k.height
+            ));
+        }
+        self.raw.to_metres(&mut self.depth);
+        self.depth.clamp_range(range.0, range.1);
+        Ok(&mut self.depth)
+    }
+
+    /// The last image read (once given back).
+    pub fn last(&self) -> &DepthImage {
+        &self.depth
+    }
+
+    /// Gives back the image [`DepthReader::read`] lent (taken out of it to
+    /// make a frame), so its buffer serves the next frame.
+    pub fn put_back(&mut self, depth: DepthImage) {
+        self.depth = depth;
     }
 }
 

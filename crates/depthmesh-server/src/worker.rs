@@ -4,16 +4,15 @@
 //! files into `OUT/<session>/`.
 
 use crate::jpeg::ColorType;
-use crate::protocol::{pose_to_array, tagged, FrameMessage, Verdict, STATUS_MAGIC};
+use crate::protocol::{pose_to_array, tagged, DepthReader, FrameMessage, Verdict, STATUS_MAGIC};
 use crate::view::feed::Feed;
-use depthmesh::codec::{Decoder, RawDepth};
 use depthmesh::mesh::Mesh;
 use depthmesh::session::run_files::RunFiles;
 use depthmesh::session::status::StatusImage;
 use depthmesh::session::{FrameRecord, Session};
 use depthmesh::store::checkpoints::Checkpoints;
 use depthmesh::track::pyramid::half;
-use depthmesh::{DepthImage, Frame, Intrinsics, Pose};
+use depthmesh::{Frame, Intrinsics, Pose};
 use serde_json::{Map, Value};
 use std::collections::VecDeque;
 use std::sync::{Arc, Condvar, Mutex};
@@ -138,9 +137,7 @@ impl Worker {
             k
         };
         let mut buffers = Buffers {
-            decoders: Vec::new(),
-            raw: RawDepth::default(),
-            depth: DepthImage::default(),
+            reader: DepthReader::default(),
             status: StatusImage::default(),
             jpeg: Vec::new(),
         };
@@ -156,7 +153,7 @@ impl Worker {
                         let busy = inbox.waiting_frames() > 0;
                         self.feed.after_frame(
                             &mut self.session,
-                            &buffers.depth,
+                            buffers.reader.last(),
                             self.bytes_in,
                             busy,
                         );
@@ -179,8 +176,12 @@ impl Worker {
                     let _ = reply.send(self.session.mesh().clone());
                 }
                 Job::Publish => {
-                    self.feed
-                        .after_frame(&mut self.session, &buffers.depth, self.bytes_in, false);
+                    self.feed.after_frame(
+                        &mut self.session,
+                        buffers.reader.last(),
+                        self.bytes_in,
+                        false,
+                    );
                 }
                 Job::End => break,
             }
@@ -206,39 +207,17 @@ impl Worker {
         k: &Intrinsics,
         b: &mut Buffers,
     ) -> Result<(Verdict, Option<Pose>), String> {
-        let decoder = match b.decoders.iter_mut().find(|(c, _)| *c == msg.codec) {
-            Some((_, d)) => d,
-            None => {
-                b.decoders
-                    .push((msg.codec, Decoder::new(msg.codec, self.max_pixels)));
-                &mut b.decoders.last_mut().expect("just pushed").1
-            }
-        };
         self.bytes_in += msg.payload.len() as u64;
-        decoder
-            .decode_into(&msg.payload, &mut b.raw)
-            .map_err(|e| format!("frame {}: {e}", msg.index))?;
-        if (b.raw.width(), b.raw.height()) != (k.width, k.height) {
-            return Err(format!(
-                "frame {}: depth image is {}×{} but the intrinsics say {}×{}",
-                msg.index,
-                b.raw.width(),
-                b.raw.height(),
-                k.width,
-                k.height
-            ));
-        }
-        b.raw.to_metres(&mut b.depth);
-        b.depth.clamp_range(self.depth_range.0, self.depth_range.1);
+        let depth = b.reader.read(&msg, k, self.depth_range, self.max_pixels)?;
         let frame = Frame {
             index: usize::try_from(msg.index).map_err(|_| "frame index too large".to_string())?,
             timestamp: msg.timestamp,
-            depth: std::mem::take(&mut b.depth),
+            depth: std::mem::take(depth),
             color: None,
             pose: msg.pose,
         };
         let result = self.session.push(&frame);
-        b.depth = frame.depth;
+        b.reader.put_back(frame.depth);
         let outcome = result.map_err(|e| e.to_string())?;
         let (verdict, pose) = verdict(msg.index, outcome.record);
         self.files
@@ -289,9 +268,7 @@ fn verdict(index: u64, r: &FrameRecord) -> (Verdict, Option<Pose>) {
 
 /// A session thread's reused buffers.
 struct Buffers {
-    decoders: Vec<(depthmesh::codec::Codec, Decoder)>,
-    raw: RawDepth,
-    depth: DepthImage,
+    reader: DepthReader,
     status: StatusImage,
     jpeg: Vec<u8>,
 }
