@@ -281,6 +281,9 @@ fn sensors_published_in_folder_order_give_the_map_reconstruct_makes() {
         );
     };
     assert_eq!(watched["figures"]["frames"], 24, "{watched}");
+    let (code, body) = served.get(&format!("/api/sessions/site-order/mesh.ply?token={TOKEN}"));
+    assert_eq!(code, 404);
+    assert!(String::from_utf8_lossy(&body).contains("cluster fetch"));
     drop(workers);
 }
 

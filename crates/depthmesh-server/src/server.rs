@@ -267,6 +267,12 @@ async fn download(
     let inbox = {
         let sessions = shared.sessions.lock().expect("sessions lock");
         match sessions.get(&name) {
+            Some(e) if e.external => {
+                return refuse(
+                    StatusCode::NOT_FOUND,
+                    "a view of a map made elsewhere is not downloaded here: `depthmesh cluster fetch` assembles a site's map",
+                )
+            }
             Some(e) => e.inbox.clone(),
             None => return refuse(StatusCode::NOT_FOUND, "no such session"),
         }
