@@ -149,10 +149,11 @@ impl Site {
             )
             .into());
         }
-        let client = async_nats::connect(url)
-            .await
-            .map_err(|e| ClusterError::bus(&format!("cannot connect to {url}"), e))?;
-        let js = jetstream::new(client);
+        Site::build(bus(url).await?, name, lease).await
+    }
+
+    /// The site's resources on the bus `js`, made where missing.
+    async fn build(js: jetstream::Context, name: &str, lease: Option<Duration>) -> Result<Site> {
         let stream = js
             .get_or_create_stream(stream::Config {
                 name: format!("DM_{name}"),
@@ -203,20 +204,14 @@ impl Site {
     /// published to it or a worker ran), without creating anything.
     pub async fn open(url: &str, name: &str) -> Result<Site> {
         check_name(name)?;
-        let client = async_nats::connect(url)
-            .await
-            .map_err(|e| ClusterError::bus(&format!("cannot connect to {url}"), e))?;
-        if jetstream::new(client)
-            .get_stream(format!("DM_{name}"))
-            .await
-            .is_err()
-        {
+        let js = bus(url).await?;
+        if js.get_stream(format!("DM_{name}")).await.is_err() {
             return Err(ClusterError::site(
                 name,
                 format!("no such site on {url}: nothing was published to it and no worker ran"),
             ));
         }
-        Site::connect(url, name, None).await
+        Site::build(js, name, None).await
     }
 
     /// Reads the site's lease time again: a worker started with
@@ -360,6 +355,14 @@ impl Site {
             .map_err(|e| ClusterError::bus("cannot read the stream's state", e))?;
         Ok(info.state.last_sequence)
     }
+}
+
+/// A JetStream context on the bus at `url`.
+async fn bus(url: &str) -> Result<jetstream::Context> {
+    async_nats::connect(url)
+        .await
+        .map(jetstream::new)
+        .map_err(|e| ClusterError::bus(&format!("cannot connect to {url}"), e))
 }
 
 /// A site's name becomes part of subjects and bucket names: letters,
