@@ -120,7 +120,7 @@ pub async fn status(site: &Site) -> Result<Status> {
 }
 
 /// The live fusion workers' and trackers' last heartbeats.
-async fn heartbeats(site: &Site) -> Result<(Vec<Heartbeat>, Vec<TrackerBeat>)> {
+pub(crate) async fn heartbeats(site: &Site) -> Result<(Vec<Heartbeat>, Vec<TrackerBeat>)> {
     let keys: Vec<String> = site
         .workers
         .keys()

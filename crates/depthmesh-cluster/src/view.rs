@@ -9,7 +9,7 @@ use crate::checkpoint::{load_blocks, read_manifest, Manifest};
 use crate::error::Result;
 use crate::fetch::frames_by_sensor;
 use crate::site::Site;
-use crate::status::status;
+use crate::status::heartbeats;
 use depthmesh::session::{Backend, Session, SessionConfig};
 use depthmesh_server::Server;
 use serde_json::json;
@@ -54,14 +54,22 @@ pub async fn follow(site: &Site, server: &Server, stop: &AtomicBool) -> Result<(
         viewers = view.viewers();
         let now_settled = !changed && (!settled || joined);
         if changed || now_settled {
-            let s = status(site).await?;
-            let frames = seen.iter().flatten().map(|m| m.frames).min().unwrap_or(0);
+            // What the view holds: the checkpoints just read, not the
+            // workers' live positions (`cluster status` reads those).
+            let (workers, _) = heartbeats(site).await?;
+            let fps = workers.iter().map(|w| w.frames_per_second).reduce(f64::min);
+            let held = |f: fn(&Manifest) -> u64| seen.iter().map(|m| m.as_ref().map_or(0, f)).min();
+            let frames = held(|m| m.frames).unwrap_or(0);
+            let lag = site
+                .last_seq()
+                .await?
+                .saturating_sub(held(|m| m.seq).unwrap_or(0));
             let figures = json!({
                 "frames": frames,
                 "fused": frames,
                 "lost_frames": 0,
-                "fps": s.frames_per_second,
-                "tracking": format!("{} workers, lag {}", s.workers.len(), s.lag),
+                "fps": fps.unwrap_or(0.0),
+                "tracking": format!("{} workers, lag {lag}", workers.len()),
             });
             view.publish(&mut session, figures, now_settled);
         }
