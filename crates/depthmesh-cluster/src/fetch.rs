@@ -192,7 +192,7 @@ pub async fn fetch(site: &Site, wait: Option<Duration>) -> Result<(Mesh, FetchRe
     report.every_frame_fused_once = report.complete
         && report.frames_fused_min == report.frames_fused_max
         && report.frames_fused_max + report.frames_rejected == posed;
-    let mesh = tokio::task::block_in_place(|| fuser.mesh(|_| true));
+    let mesh = tokio::task::block_in_place(|| fuser.mesh());
     report.triangles = mesh.triangle_count() as u64;
     report.seconds = start.elapsed().as_secs_f64();
     Ok((mesh, report))
@@ -247,7 +247,7 @@ pub async fn replay(
         progress(seq, last);
     }
     let fused = start.elapsed().as_secs_f64();
-    let mesh = tokio::task::block_in_place(|| fuser.mesh(|_| true));
+    let mesh = tokio::task::block_in_place(|| fuser.mesh());
     report.blocks = fuser.volume.blocks().len() as u64;
     report.triangles = mesh.triangle_count() as u64;
     report.seconds = start.elapsed().as_secs_f64();

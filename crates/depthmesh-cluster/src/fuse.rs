@@ -142,15 +142,9 @@ impl Fuser {
         })
     }
 
-    /// The mesh of the blocks `keep` accepts, in key order.
-    pub fn mesh(&self, keep: impl Fn(IVec3) -> bool) -> Mesh {
-        let mut keys: Vec<IVec3> = self
-            .volume
-            .blocks()
-            .iter()
-            .map(|b| b.key)
-            .filter(|&k| keep(k))
-            .collect();
+    /// The mesh of every block, in key order (so the same map is the same file).
+    pub fn mesh(&self) -> Mesh {
+        let mut keys: Vec<IVec3> = self.volume.blocks().iter().map(|b| b.key).collect();
         keys.sort_unstable_by_key(|k| (k.x, k.y, k.z));
         extract_blocks(&self.volume, &keys, self.config.min_weight)
     }

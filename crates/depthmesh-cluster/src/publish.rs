@@ -78,9 +78,10 @@ pub async fn publish(
         encoder.encode(&raw, &mut msg.payload);
         let mut bytes = Vec::with_capacity(msg.payload.len() + 80);
         msg.encode(&mut bytes);
-        let subject = match pose {
-            Some(_) if !options.track => site.posed_subject(&options.sensor),
-            _ => site.raw_subject(&options.sensor),
+        let posed = pose.is_some() && !options.track;
+        let subject = match posed {
+            true => site.posed_subject(&options.sensor),
+            false => site.raw_subject(&options.sensor),
         };
         let mut headers = HeaderMap::new();
         headers.insert(
@@ -88,7 +89,7 @@ pub async fn publish(
             Site::frame_id(&subject, frame.index).as_str(),
         );
         out.bytes += bytes.len() as u64;
-        out.posed += u64::from(subject.contains(".posed."));
+        out.posed += u64::from(posed);
         let ack = site
             .js
             .publish_with_headers(subject, headers, bytes.into())

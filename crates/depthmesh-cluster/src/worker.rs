@@ -258,7 +258,12 @@ impl Worker<'_> {
                 s.push(name.clone());
                 s
             },
-            blocks: self.shard_blocks(shard).len() as u64,
+            // A whole shard's keys are its blocks already.
+            blocks: if full {
+                keys.len()
+            } else {
+                self.shard_blocks(shard).len()
+            } as u64,
             segment_bytes: bytes.len() as u64,
             writer: self.options.id.clone(),
         };
