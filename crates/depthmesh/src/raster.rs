@@ -299,7 +299,8 @@ impl Rasterizer {
             Some(b) => {
                 self.vertex_block_needed.resize(vertex_blocks, false);
                 for (bx, range) in b.boxes.iter().zip(&b.vertex_ranges) {
-                    let visible = view.may_see(&world_to_camera, bx);
+                    // A chunk of holes only uses no vertex (range empty).
+                    let visible = range.0 <= range.1 && view.may_see(&world_to_camera, bx);
                     self.chunk_visible.push(visible);
                     if visible {
                         let (lo, hi) = (
@@ -385,6 +386,9 @@ impl Rasterizer {
                 let first = (chunk * CHUNK_TRIANGLES) as u32;
                 let mut any = false;
                 for (i, t) in tris.iter().enumerate() {
+                    if is_hole(t) {
+                        continue;
+                    }
                     let id = first + i as u32;
                     let screen = t.map(|v| vertices.screen[v as usize]);
                     if let Some(state) = state.as_deref_mut() {
@@ -487,7 +491,7 @@ impl Rasterizer {
             .filter(|(_, &visible)| visible)
             .map(|((state, tris), _)| {
                 let mut any = false;
-                for (s, t) in state.iter_mut().zip(tris) {
+                for (s, t) in state.iter_mut().zip(tris).filter(|(_, t)| !is_hole(t)) {
                     any |= visit(s, &t.map(|v| screen[v as usize]));
                 }
                 any
@@ -510,6 +514,15 @@ impl Rasterizer {
             }
         }
     }
+}
+
+/// Whether a triangle is a hole: all three corners one vertex. A mesh that
+/// drops triangles often (MABDI's removal) leaves holes in their slots and
+/// closes them up now and then, rather than moving every later triangle at
+/// each removal; a hole covers nothing, is not visited and bounds nothing.
+#[inline]
+pub fn is_hole(t: &[u32; 3]) -> bool {
+    t[0] == t[1] && t[1] == t[2]
 }
 
 /// What to render: vertex positions, triangles and optionally the boxes of
@@ -552,7 +565,7 @@ impl ChunkBounds {
             .map(|tris| {
                 let mut b = Aabb::EMPTY;
                 let mut range = (u32::MAX, 0);
-                for &v in tris.iter().flatten() {
+                for &v in tris.iter().filter(|t| !is_hole(t)).flatten() {
                     b.include(positions[v as usize]);
                     range = (range.0.min(v), range.1.max(v));
                 }

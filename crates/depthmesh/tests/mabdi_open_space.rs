@@ -172,3 +172,36 @@ fn a_present_object_that_returns_nothing_is_kept() {
         counts.iter().map(|c| c[0]).collect::<Vec<_>>()
     );
 }
+
+#[test]
+fn holes_left_by_removal_change_nothing_but_the_work() {
+    // Removal leaves holes in M and closes them up now and then; a map
+    // closed up after every iteration (as `mesh()` does) must grow, settle
+    // and shrink exactly alike.
+    let scene = scene(OPEN_SPACE);
+    let poses = PathSpec::Helix.build(&scene, 30).unwrap();
+    let (mut a_sensor, mut b_sensor) = (sensor(), sensor());
+    let config = MabdiConfig::thesis(a_sensor.intrinsics, a_sensor.near, a_sensor.far);
+    let mut closed = MabdiMapper::new(config).unwrap();
+    let mut holed = MabdiMapper::new(config).unwrap();
+    let mut most_holes = 0;
+    for (i, pose) in poses.iter().enumerate() {
+        let iteration = i as u32 + 1;
+        let a = closed
+            .integrate(&a_sensor.capture(&scene, iteration, pose), pose)
+            .unwrap();
+        let b = holed
+            .integrate(&b_sensor.capture(&scene, iteration, pose), pose)
+            .unwrap();
+        assert_eq!(
+            a.removed_elements, b.removed_elements,
+            "iteration {iteration}"
+        );
+        assert_eq!(a.new_elements, b.new_elements, "iteration {iteration}");
+        let triangles = closed.mesh().triangle_count();
+        assert_eq!(holed.stats().elements, triangles, "iteration {iteration}");
+        most_holes = most_holes.max(holed.mesh_ref().triangle_count() - triangles);
+    }
+    assert!(most_holes > 0, "removal never left a hole");
+    assert_eq!(holed.mesh(), closed.mesh());
+}

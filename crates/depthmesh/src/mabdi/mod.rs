@@ -23,7 +23,7 @@ use crate::image::{DepthImage, Frame};
 use crate::map::{IntegrateReport, MapStats, Mapper};
 use crate::mesh::Mesh;
 use crate::palette::iteration_color;
-use crate::raster::{render_mesh_depth, ChunkBounds, Geometry, Rasterizer, RenderTarget};
+use crate::raster::{is_hole, render_mesh_depth, ChunkBounds, Geometry, Rasterizer, RenderTarget};
 use absence::MissingReturns;
 use classify::{classify, PixelClass, Threshold};
 use mesher::DepthMesher;
@@ -195,8 +195,10 @@ pub struct MabdiMapper {
     carver: Carver,
     /// M's triangles by the iteration that added them, for simplification.
     patches: Patches,
-    /// Scratch for removal: new vertex indices.
+    /// Scratch for closing up: new vertex indices.
     remap: Vec<u32>,
+    /// Scratch for removal: the triangles removed this frame.
+    removed: Vec<usize>,
     /// Boxes of M's triangle chunks, so E skips what is out of view.
     chunks: ChunkBounds,
 }
@@ -257,17 +259,24 @@ impl MabdiMapper {
             carver: Carver::default(),
             patches,
             remap: Vec::new(),
+            removed: Vec::new(),
             chunks,
         })
     }
 
-    /// The map's state, to save (a copy).
+    /// The map's state, to save (a copy, closed up).
     pub fn state(&self) -> MabdiState {
-        let (patches, next_patch) = self.patches.saved();
+        let (mut mesh, mut votes, mut patches) = (
+            self.mesh.clone(),
+            self.carver.votes.clone(),
+            self.patches.clone(),
+        );
+        close_up(&mut mesh, &mut votes, &mut patches, &mut Vec::new());
+        let (patches, next_patch) = patches.saved();
         MabdiState {
-            mesh: self.mesh.clone(),
+            mesh,
             iteration: self.iteration,
-            votes: self.carver.votes.clone(),
+            votes,
             patches,
             next_patch,
         }
@@ -282,7 +291,7 @@ impl MabdiMapper {
         let patches = settle::Patches::restore(&state.patches, state.next_patch);
         let triangles = state.mesh.triangle_count();
         let votes_fit = state.votes.is_empty() || state.votes.len() == triangles;
-        if patches.triangles() != triangles || !votes_fit {
+        if patches.slots() != triangles || !votes_fit {
             return Err(Error::parameter(
                 "saved map",
                 "its patches or votes do not cover its triangles",
@@ -308,7 +317,8 @@ impl MabdiMapper {
         &self.classes
     }
 
-    /// The global mesh M.
+    /// The global mesh M as it is held: it may have holes (see [`is_hole`]),
+    /// which cover nothing; [`Mapper::mesh`] closes them up.
     pub fn mesh_ref(&self) -> &Mesh {
         &self.mesh
     }
@@ -331,39 +341,86 @@ impl MabdiMapper {
         self.patches
             .ranges(ids)
             .into_iter()
-            .map(|r| r.map_or_else(Mesh::default, |r| self.mesh.triangle_range(r)))
+            .map(|r| {
+                r.map_or_else(Mesh::default, |r| {
+                    let mut patch = self.mesh.triangle_range(r);
+                    patch.triangles.retain(|t| !is_hole(t));
+                    patch.remove_unreferenced_vertices();
+                    patch
+                })
+            })
             .collect()
     }
 
-    /// Drops the triangles whose removal votes reached the limit, and the
-    /// vertices left unused. Only the patches from the one holding the first
-    /// removed triangle on are touched: M's vertices come in patch order, so
-    /// earlier patches use none of theirs.
+    /// Turns the triangles whose removal votes reached the limit into
+    /// holes (see [`is_hole`]), so that a removal costs what it removes
+    /// rather than moving every later triangle; M is closed up once an
+    /// eighth of its slots are holes.
     fn remove_contradicted(&mut self, frames: u8) -> usize {
-        let votes = &self.carver.votes;
-        let Some(first) = votes.iter().position(|&v| v >= frames) else {
-            return 0;
-        };
-        let start = self.patches.start_of(first);
-        self.patches
-            .removed(self.iteration, first, |t| votes[t] < frames);
-        let mesh = &mut self.mesh;
-        let before = mesh.triangles.len();
-        let mut kept = start;
-        for (t, &vote) in votes.iter().enumerate().take(before).skip(start) {
-            if vote < frames {
-                mesh.triangles[kept] = mesh.triangles[t];
-                kept += 1;
+        let removed = &mut self.removed;
+        removed.clear();
+        for (t, vote) in self.carver.votes.iter_mut().enumerate() {
+            if *vote >= frames {
+                removed.push(t);
+                *vote = 0;
+                let tri = &mut self.mesh.triangles[t];
+                *tri = [tri[0]; 3];
             }
         }
-        mesh.triangles.truncate(kept);
-        self.carver.retain(|v| v < frames);
-        compact_vertices(mesh, start, &mut self.remap);
-        self.chunks.truncate(start);
-        self.chunks
-            .extend(&self.mesh.positions, &self.mesh.triangles);
-        before - self.mesh.triangles.len()
+        self.patches.lost(self.iteration, removed);
+        let slots = self.mesh.triangles.len();
+        if slots - self.patches.triangles() > slots / 8 {
+            self.close_up();
+        }
+        self.removed.len()
     }
+
+    /// Closes up M's holes now (see [`close_up`]).
+    fn close_up(&mut self) {
+        if let Some(start) = close_up(
+            &mut self.mesh,
+            &mut self.carver.votes,
+            &mut self.patches,
+            &mut self.remap,
+        ) {
+            self.chunks.truncate(start);
+            self.chunks
+                .extend(&self.mesh.positions, &self.mesh.triangles);
+        }
+    }
+}
+
+/// Drops the holes of `mesh` (see [`is_hole`]) with their `votes` (empty
+/// without removal) and the vertices left unused, and tells `patches`.
+/// Only the patches from the one holding the first hole on are touched:
+/// M's vertices come in patch order, so earlier patches use none of theirs.
+/// Returns the first triangle that moved, if any did; `remap` is scratch.
+fn close_up(
+    mesh: &mut Mesh,
+    votes: &mut Vec<u8>,
+    patches: &mut Patches,
+    remap: &mut Vec<u32>,
+) -> Option<usize> {
+    let first = mesh.triangles.iter().position(is_hole)?;
+    let start = patches.start_of(first);
+    if !votes.is_empty() {
+        votes.resize(mesh.triangles.len(), 0); // triangles added since the render have none
+    }
+    let mut kept = start;
+    for t in start..mesh.triangles.len() {
+        if !is_hole(&mesh.triangles[t]) {
+            mesh.triangles[kept] = mesh.triangles[t];
+            if !votes.is_empty() {
+                votes[kept] = votes[t];
+            }
+            kept += 1;
+        }
+    }
+    mesh.triangles.truncate(kept);
+    votes.truncate(kept);
+    patches.closed();
+    compact_vertices(mesh, start, remap);
+    Some(start)
 }
 
 /// Drops the vertices no triangle uses, given that the triangles before
@@ -551,11 +608,17 @@ impl Mapper for MabdiMapper {
     }
 
     fn mesh(&mut self) -> &Mesh {
+        self.close_up();
         &self.mesh
     }
 
+    /// The triangles of M (holes not counted) and the vertices it holds
+    /// (until M is closed up, some no triangle uses any more).
     fn stats(&self) -> MapStats {
-        mesh_stats(&self.mesh)
+        MapStats {
+            elements: self.patches.triangles(),
+            ..mesh_stats(&self.mesh)
+        }
     }
 }
 

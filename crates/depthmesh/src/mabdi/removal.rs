@@ -147,11 +147,6 @@ impl Carver {
         );
         (&mut self.votes, absence)
     }
-
-    /// Drops the counters of removed triangles, keeping those where `keep`.
-    pub fn retain(&mut self, mut keep: impl FnMut(u8) -> bool) {
-        self.votes.retain(|&v| keep(v));
-    }
 }
 
 impl Evidence<'_> {

@@ -27,6 +27,7 @@ use crate::error::Result;
 use crate::mabdi::classify::Threshold;
 use crate::mesh::simplify::{simplify_locked, SimplifyParams};
 use crate::mesh::Mesh;
+use crate::raster::is_hole;
 use rayon::prelude::*;
 use std::collections::HashMap;
 
@@ -49,6 +50,9 @@ struct Patch {
     id: u32,
     /// Triangles it has now.
     len: usize,
+    /// Slots of M it spans: its triangles and the holes removal left among
+    /// them (see [`crate::raster::is_hole`]) until M is closed up.
+    slots: usize,
     /// The sensor pose that saw it, if known.
     pose: Option<Pose>,
     /// Last iteration at which it was added to or lost triangles.
@@ -74,7 +78,8 @@ pub struct Patches {
 pub type SavedPatch = (u32, usize, u32, bool, Option<[f32; 12]>);
 
 impl Patches {
-    /// The patches and the next patch's id, to save.
+    /// The patches and the next patch's id, to save (from a closed-up M,
+    /// whose patches span no holes).
     pub fn saved(&self) -> (Vec<SavedPatch>, u32) {
         let patches = self
             .patches
@@ -99,6 +104,7 @@ impl Patches {
             .map(|&(id, len, changed, done, pose)| Patch {
                 id,
                 len,
+                slots: len,
                 pose: pose.map(|a| {
                     Pose::new(
                         glam::Mat3::from_cols_slice(&a[..9]),
@@ -116,9 +122,26 @@ impl Patches {
         }
     }
 
-    /// Triangles the patches hold.
+    /// Slots of M the patches span (M's triangle count, holes included).
+    pub fn slots(&self) -> usize {
+        self.patches.iter().map(|p| p.slots).sum()
+    }
+
+    /// Triangles the patches hold (holes not counted).
     pub fn triangles(&self) -> usize {
         self.patches.iter().map(|p| p.len).sum()
+    }
+
+    /// The first slot of each patch.
+    fn starts(&self) -> Vec<usize> {
+        let mut start = 0;
+        self.patches
+            .iter()
+            .map(|p| {
+                start += p.slots;
+                start - p.slots
+            })
+            .collect()
     }
 
     /// Numbers a new patch and notes it for viewers.
@@ -154,19 +177,15 @@ impl Patches {
         ids
     }
 
-    /// The triangles of M each patch `ids[i]` holds now; `None` for a patch
-    /// that lost all of them.
+    /// The slots of M each patch `ids[i]` spans now (holes among its
+    /// triangles included); `None` for a patch that lost all its triangles.
     pub fn ranges(&self, ids: &[u32]) -> Vec<Option<std::ops::Range<usize>>> {
-        let mut starts = Vec::with_capacity(self.patches.len());
-        let mut start = 0;
-        for p in &self.patches {
-            starts.push(start);
-            start += p.len;
-        }
+        let starts = self.starts();
         ids.iter()
             .map(|id| {
                 let i = self.patches.binary_search_by_key(id, |p| p.id).ok()?;
-                Some(starts[i]..starts[i] + self.patches[i].len)
+                let p = &self.patches[i];
+                (p.len > 0).then(|| starts[i]..starts[i] + p.slots)
             })
             .collect()
     }
@@ -178,6 +197,7 @@ impl Patches {
             self.patches.push(Patch {
                 id,
                 len: triangles,
+                slots: triangles,
                 pose: None,
                 changed: 0,
                 done: true,
@@ -192,6 +212,7 @@ impl Patches {
             self.patches.push(Patch {
                 id,
                 len: triangles,
+                slots: triangles,
                 pose: Some(*pose),
                 changed: iteration,
                 done: false,
@@ -199,41 +220,47 @@ impl Patches {
         }
     }
 
-    /// The first triangle of the patch holding triangle `t`.
+    /// The first slot of the patch holding slot `t`.
     pub fn start_of(&self, t: usize) -> usize {
         let mut start = 0;
         for p in &self.patches {
-            if t < start + p.len {
+            if t < start + p.slots {
                 break;
             }
-            start += p.len;
+            start += p.slots;
         }
         start
     }
 
-    /// Accounts for a removal at `iteration` that kept every triangle
-    /// before `first`; `kept(t)` says whether the triangle that was at index
-    /// `t` stayed.
-    pub fn removed(&mut self, iteration: u32, first: usize, kept: impl Fn(usize) -> bool) {
-        let mut start = 0;
+    /// Accounts for the triangles in slots `removed` (ascending) becoming
+    /// holes at `iteration`.
+    pub fn lost(&mut self, iteration: u32, removed: &[usize]) {
+        let mut rest = removed;
+        let mut end = 0;
         for p in &mut self.patches {
-            if start + p.len <= first {
-                start += p.len;
+            end += p.slots;
+            let n = rest.partition_point(|&t| t < end);
+            if n == 0 {
                 continue;
             }
-            let left = (start..start + p.len).filter(|&t| kept(t)).count();
-            start += p.len;
+            rest = &rest[n..];
             // Noise takes a spike now and then; a patch losing a real
             // part of itself is changing.
-            if (p.len - left) * 100 >= p.len {
+            if n * 100 >= p.len {
                 p.changed = iteration;
             }
-            if left < p.len {
-                if let Some(changed) = &mut self.changed {
-                    changed.push(p.id);
-                }
+            p.len -= n;
+            if let Some(changed) = &mut self.changed {
+                changed.push(p.id);
             }
-            p.len = left;
+        }
+    }
+
+    /// Accounts for M closed up: every patch spans its triangles only, and
+    /// those left with none are gone.
+    pub fn closed(&mut self) {
+        for p in &mut self.patches {
+            p.slots = p.len;
         }
         self.patches.retain(|p| p.len > 0);
     }
@@ -252,31 +279,31 @@ impl Patches {
         if !votes.is_empty() {
             votes.resize(mesh.triangle_count(), 0); // the triangles added since the render
         }
-        let mut starts = Vec::with_capacity(self.patches.len());
-        let mut start = 0;
-        for p in &self.patches {
-            starts.push(start);
-            start += p.len;
-        }
+        let starts = self.starts();
         let ready: Vec<usize> = (0..self.patches.len())
             .filter(|&i| {
                 let p = &self.patches[i];
-                !p.done && iteration.saturating_sub(p.changed) >= settling.after
+                !p.done && p.len > 0 && iteration.saturating_sub(p.changed) >= settling.after
             })
             .collect();
         if ready.is_empty() {
             return Ok(None);
         }
         // Every group of every ready patch, simplified in parallel.
-        let jobs: Vec<(usize, std::ops::Range<usize>)> = ready
-            .iter()
-            .flat_map(|&i| {
-                let end = starts[i] + self.patches[i].len;
-                (starts[i]..end)
-                    .step_by(GROUP)
-                    .map(move |g| (i, g..(g + GROUP).min(end)))
-            })
-            .collect();
+        // Groups hold GROUP triangles whatever holes lie between them, so a
+        // map closed up (saved and resumed) settles into the same groups.
+        let mut jobs: Vec<(usize, std::ops::Range<usize>)> = Vec::new();
+        for &i in &ready {
+            let (start, end) = (starts[i], starts[i] + self.patches[i].slots);
+            let (mut from, mut live) = (start, 0);
+            for t in start..end {
+                live += usize::from(!is_hole(&mesh.triangles[t]));
+                if live == GROUP || t + 1 == end {
+                    jobs.push((i, from..t + 1));
+                    (from, live) = (t + 1, 0);
+                }
+            }
+        }
         let mut parts = jobs
             .par_iter()
             .map(|(i, range)| {
@@ -291,22 +318,19 @@ impl Patches {
                 group.simplify(&pose, settling, novelty)
             })
             .collect::<Result<Vec<_>>>()?;
-        let before = mesh.triangle_count();
+        let mut fewer = 0;
         // Back to front, so the patches not yet replaced keep their indices.
         for &i in ready.iter().rev() {
             let first = jobs.partition_point(|(j, _)| *j < i);
             let patch_parts: Vec<_> = parts.drain(first..).collect();
-            self.patches[i].len = replace(
-                mesh,
-                votes,
-                starts[i]..starts[i] + self.patches[i].len,
-                patch_parts,
-            );
-            self.patches[i].done = true;
+            let p = &mut self.patches[i];
+            let count = replace(mesh, votes, starts[i]..starts[i] + p.slots, patch_parts);
+            fewer += p.len - count;
+            (p.len, p.slots, p.done) = (count, count, true);
             self.note(self.patches[i].id);
         }
         Ok(Some(Settled {
-            fewer: before - mesh.triangle_count(),
+            fewer,
             first: starts[ready[0]],
         }))
     }
@@ -315,7 +339,8 @@ impl Patches {
 /// What one settling step did to M.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub struct Settled {
-    /// How many triangles fewer M has.
+    /// How many triangles fewer M has (the holes the simplified patches
+    /// spanned are closed up too).
     pub fewer: usize,
     /// The first triangle index that changed (M is unchanged before it).
     pub first: usize,
@@ -388,6 +413,9 @@ impl Group<'_> {
         let to_camera = pose.inverse();
         let mut nearest = f32::INFINITY;
         for t in self.range.clone() {
+            if is_hole(&mesh.triangles[t]) {
+                continue;
+            }
             let vote = self.votes.get(t).copied().unwrap_or(0);
             let tri = mesh.triangles[t].map(|v| {
                 let i = *index.entry(v).or_insert_with(|| {
@@ -405,6 +433,9 @@ impl Group<'_> {
                 voted.insert(corner_key(&local, &tri), vote);
             }
             local.triangles.push(tri);
+        }
+        if local.triangles.is_empty() {
+            return Ok((local, Vec::new())); // holes only
         }
         let bound = settling.error * novelty.at(nearest.max(0.0));
         let params = SimplifyParams {
