@@ -391,14 +391,26 @@ fn mabdi_removal(args: &MabdiRemovalArgs) -> Result<()> {
         options.variables.insert("bunny".into(), bunny.clone());
     }
     let scene = Scene::load(&args.scene, &options)?;
+    // The same scene with nothing taken away or added: a run of it with
+    // removal is what present objects are compared with besides a
+    // `--keep-removed` run, which adds surface again behind a stale object.
+    let unchanged = Scene::load(
+        &args.scene,
+        &SceneOptions {
+            dynamic: false,
+            ..options.clone()
+        },
+    )?;
     let poses = PathSpec::Helix.build(&scene, args.iterations)?;
     let mut sensor = SimulatedSensor::kinect(args.noise, 0);
+    let mut unchanged_sensor = SimulatedSensor::kinect(args.noise, 0);
     let config = MabdiConfig::thesis(sensor.intrinsics, sensor.near, sensor.far);
     let mut removing = MabdiMapper::new(config)?;
     let mut keeping = MabdiMapper::new(MabdiConfig {
         removal: None,
         ..config
     })?;
+    let mut steady = MabdiMapper::new(config)?;
     // A triangle is on an object within 1 cm of it and not within 5 cm of another.
     let index: Vec<(MeshDistance, MeshDistance)> = (0..scene.objects.len())
         .map(|i| {
@@ -421,6 +433,7 @@ fn mabdi_removal(args: &MabdiRemovalArgs) -> Result<()> {
         let frame = sensor.capture(&scene, iteration, pose);
         removing.integrate(&frame, pose)?;
         keeping.integrate(&frame, pose)?;
+        steady.integrate(&unchanged_sensor.capture(&unchanged, iteration, pose), pose)?;
         for (o, object) in scene.objects.iter().enumerate() {
             match object.remove_at {
                 Some(r) if iteration < r => peak[o] = peak[o].max(on(&mut removing, o)),
@@ -435,6 +448,8 @@ fn mabdi_removal(args: &MabdiRemovalArgs) -> Result<()> {
         .enumerate()
         .map(|(o, object)| {
             let (with, without) = (on(&mut removing, o), on(&mut keeping, o));
+            let present = object.remove_at.is_none() && object.appear_at.is_none();
+            let unchanged = present.then(|| on(&mut steady, o));
             // Surface of the object with M within 1 cm: unlike triangles, not
             // raised by surface added again behind a stale object.
             let mapped = |m: &mut MabdiMapper| fraction_within(&object.mesh, m.mesh(), 0.01, 0.01);
@@ -446,6 +461,8 @@ fn mabdi_removal(args: &MabdiRemovalArgs) -> Result<()> {
                 "triangles": with,
                 "triangles_keep_removed": without,
                 "kept_vs_keep_removed": with as f64 / without.max(1) as f64,
+                "triangles_unchanged_scene": unchanged,
+                "kept_vs_unchanged_scene": unchanged.map(|u| with as f64 / u.max(1) as f64),
                 "surface_mapped": mapped(&mut removing),
                 "surface_mapped_keep_removed": mapped(&mut keeping),
                 "peak_before_removal": object.remove_at.map(|_| peak[o]),
