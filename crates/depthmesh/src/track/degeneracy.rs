@@ -1,18 +1,15 @@
-//! The degeneracy-aware ICP update, after Zhang, Kaess and Singh (ICRA
-//! 2016, "On degeneracy of optimization-based state estimation problems"):
-//! the pose follows the data along the eigen-directions they constrain
-//! well and keeps the prediction it started from (the constant-velocity
-//! motion model) along the others.
+//! The degeneracy-aware ICP update of Zhang, Kaess and Singh (ICRA 2016,
+//! "On degeneracy of optimization-based state estimation problems"): the
+//! pose follows the data only along the eigen-directions they constrain
+//! well; along the others it keeps the prediction it started from (the
+//! constant-velocity motion model).
 //!
-//! Unlike the paper's hard cut, every ICP update combines the two by their
-//! information: the prediction is a prior that counts as much as a
-//! direction constrained with the tracker's `weak_conditioning`, so a
-//! direction constrained far less goes back to the prediction, one
-//! constrained about as much moves part of the way, and the prior fades
-//! out along well-constrained ones ([`Directions::solve`]). With a hard cut
-//! the weak part followed the prediction alone, and the constant-velocity
-//! model then carried its error on from frame to frame; with the prior
-//! the data still pull it back a little every frame.
+//! Unlike the paper, which drops the weak directions from every update,
+//! ICP here iterates on all directions but the numerically singular ones
+//! and removes the weak part of the motion once, from the system at the
+//! pose found: while far from it (a first frame with no motion model), a
+//! direction can look weak only because the frame does not overlap the
+//! model's structure yet, and dropping it then stops ICP short.
 //!
 //! A floor with a table, a long wall or a corridor constrains some motions
 //! well and others barely; solving them all lets noise push the pose along
@@ -60,54 +57,22 @@ impl Directions {
         })
     }
 
-    /// The update (rotation as a scaled axis, translation) that minimises
-    /// the linearised error plus `prior` times the squared range-scaled
-    /// distance from the prediction, which lies `-offset` from the current
-    /// estimate (`offset`: the motion taken beyond the prediction so far):
-    /// `(A + prior·I)·y = −b − prior·offset` on the scaled system. Along a
-    /// direction whose eigenvalue is well above `prior` the data decide;
-    /// well below, the estimate goes back to the prediction; in between, each
-    /// in proportion to its information; from [`PRIOR_FADE`] times `prior`
-    /// on, the prior fades out ([`fade`]). Directions whose eigenvalue plus
-    /// `prior` is not above `floor` are left alone (zero update): with no
-    /// prediction (`prior` 0), a plane's in-plane motion is numerically
-    /// singular.
-    pub fn solve(
-        &self,
-        floor: f64,
-        prior: f64,
-        offset: ([f64; 3], [f64; 3]),
-    ) -> ([f64; 3], [f64; 3]) {
-        let d = self.scaled_motion(offset);
+    /// The update (rotation as a scaled axis, translation) solving the
+    /// system along the directions whose eigenvalue is at least `floor`,
+    /// zero along the others.
+    pub fn solve(&self, floor: f64) -> ([f64; 3], [f64; 3]) {
         let mut y = [0.0; 6];
         for (&value, v) in self.values.iter().zip(&self.vectors) {
-            let prior = if prior > 0.0 {
-                prior * fade(value / prior)
-            } else {
-                0.0
-            };
-            let information = value + prior;
             // NaN fails the comparison too.
-            if information.partial_cmp(&floor.max(0.0)) != Some(std::cmp::Ordering::Greater) {
+            if value.partial_cmp(&floor.max(0.0)) != Some(std::cmp::Ordering::Greater) {
                 continue;
             }
-            // The component of the solution along v.
-            let along = -(dot(v, &self.b) + prior * dot(v, &d)) / information;
+            // The component of the solution of a·y = -b along v.
+            let along = -dot(v, &self.b) / value;
             for (y, v) in y.iter_mut().zip(v) {
                 *y += along * v;
             }
         }
-        self.unscaled_motion(y)
-    }
-
-    /// A motion in the scaled coordinates of the system.
-    fn scaled_motion(&self, (omega, t): ([f64; 3], [f64; 3])) -> [f64; 6] {
-        let x = [omega[0], omega[1], omega[2], t[0], t[1], t[2]];
-        std::array::from_fn(|i| x[i] / self.scale[i])
-    }
-
-    /// A motion from the scaled coordinates of the system.
-    fn unscaled_motion(&self, y: [f64; 6]) -> ([f64; 3], [f64; 3]) {
         let x: [f64; 6] = std::array::from_fn(|i| y[i] * self.scale[i]);
         ([x[0], x[1], x[2]], [x[3], x[4], x[5]])
     }
@@ -127,20 +92,36 @@ impl Directions {
         }
         weak
     }
-}
 
-/// Directions constrained this many times more than the prior gets from
-/// [`Directions::solve`] get no prior at all; in between, it fades.
-const PRIOR_FADE: f64 = 4.0;
-
-/// The share of the prior a direction with `ratio` times its information
-/// gets: all of it up to 1, none from [`PRIOR_FADE`], linear in between.
-/// Along well-constrained directions a prior would only hide a jump the
-/// data see: a camera that jumped half a metre in a room (its view
-/// constrained with 5× the prior) was held short of its pose, at a wrong
-/// one that still matched a third of its points.
-fn fade(ratio: f64) -> f64 {
-    ((PRIOR_FADE - ratio) / (PRIOR_FADE - 1.0)).clamp(0.0, 1.0)
+    /// `motion` (rotation as a scaled axis, translation) without its
+    /// components along the directions with an eigenvalue below
+    /// `min_eigenvalue`.
+    pub fn without_weak(
+        &self,
+        motion: ([f64; 3], [f64; 3]),
+        min_eigenvalue: f64,
+    ) -> ([f64; 3], [f64; 3]) {
+        let x = [
+            motion.0[0],
+            motion.0[1],
+            motion.0[2],
+            motion.1[0],
+            motion.1[1],
+            motion.1[2],
+        ];
+        let mut y: [f64; 6] = std::array::from_fn(|i| x[i] / self.scale[i]);
+        for (&value, v) in self.values.iter().zip(&self.vectors) {
+            if value >= min_eigenvalue {
+                continue;
+            }
+            let along = dot(v, &y);
+            for (y, v) in y.iter_mut().zip(v) {
+                *y -= along * v;
+            }
+        }
+        let x: [f64; 6] = std::array::from_fn(|i| y[i] * self.scale[i]);
+        ([x[0], x[1], x[2]], [x[3], x[4], x[5]])
+    }
 }
 
 fn dot(a: &[f64; 6], b: &[f64; 6]) -> f64 {

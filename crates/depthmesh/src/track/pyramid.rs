@@ -82,45 +82,6 @@ fn normal_row(points: &[Vec3], depth: &[f32], w: usize, h: usize, y: usize, row:
     }
 }
 
-/// Normals within this angle's cosine (about 18°) of a pixel's count as
-/// the same surface when [`Pyramid::smooth_normals`] averages them: a box's
-/// faces keep their own, a fused floor's ripple is averaged away.
-const SAME_SURFACE_COS: f32 = 0.95;
-
-/// Row `y` of `src` (`w` × `h`) with each normal averaged with those
-/// within `radius` pixels along a row (`step` 1) or a column (`step` `w`)
-/// that lie on the same surface: one pass of a separable square window.
-fn smooth_row(
-    src: &[Vec3],
-    w: usize,
-    h: usize,
-    radius: usize,
-    step: usize,
-    y: usize,
-    row: &mut [Vec3],
-) {
-    let len = if step == 1 { w } else { h };
-    for (x, out) in row.iter_mut().enumerate() {
-        let i = y * w + x;
-        let n = src[i];
-        if n == Vec3::ZERO {
-            *out = n;
-            continue;
-        }
-        let along = if step == 1 { x } else { y };
-        let first = i - along.min(radius) * step;
-        let count = along.min(radius) + (len - 1 - along).min(radius) + 1;
-        let mut sum = Vec3::ZERO;
-        for k in 0..count {
-            let m = src[first + k * step];
-            if m.dot(n) >= SAME_SURFACE_COS {
-                sum += m;
-            }
-        }
-        *out = sum.normalize_or_zero();
-    }
-}
-
 /// Rows `y − 1`, `y` and `y + 1` of an image `w` pixels wide.
 fn rows_around<T>(data: &[T], w: usize, y: usize) -> (&[T], &[T], &[T]) {
     let (up, rest) = data[(y - 1) * w..(y + 2) * w].split_at(w);
@@ -178,8 +139,6 @@ pub fn half(k: &Intrinsics) -> Intrinsics {
 pub struct Pyramid {
     /// Finest first.
     pub levels: Vec<Level>,
-    /// Normals half way through [`Pyramid::smooth_normals`], reused.
-    unsmoothed: Vec<Vec3>,
 }
 
 impl Pyramid {
@@ -201,36 +160,6 @@ impl Pyramid {
                 }
             }
             level.compute_maps(k);
-        }
-    }
-
-    /// Averages every level's normals over a square of `radius` pixels
-    /// around each, on the same surface. For the map's view: a fused
-    /// surface ripples by a fraction of a millimetre (the noise its frames
-    /// averaged, the voxels), which tilts normals from neighbouring pixels
-    /// by a degree, and ICP reads those tilts as constraints along the
-    /// surface (a floor seemed to pin down its in-plane motion ten times
-    /// more than a box on it did). Averaging 5×5 of them (radius 2) brought
-    /// a fused floor's normals from 1.05° to 0.24° RMS off the true one
-    /// (the quarter-resolution view of the plane-and-box scene, Kinect
-    /// noise, 30 frames fused) and its tracking error from a frame's
-    /// prediction from 8.4 to 4.7 mm on average.
-    pub fn smooth_normals(&mut self, radius: usize) {
-        for level in &mut self.levels {
-            let (w, h) = level.size();
-            // Along rows into the scratch buffer, then along columns back.
-            self.unsmoothed.resize(w * h, Vec3::ZERO);
-            let normals = &level.normals;
-            self.unsmoothed
-                .par_chunks_mut(w)
-                .enumerate()
-                .for_each(|(y, row)| smooth_row(normals, w, h, radius, 1, y, row));
-            let rows = &self.unsmoothed;
-            level
-                .normals
-                .par_chunks_mut(w)
-                .enumerate()
-                .for_each(|(y, row)| smooth_row(rows, w, h, radius, w, y, row));
         }
     }
 }
