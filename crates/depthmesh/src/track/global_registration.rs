@@ -751,12 +751,9 @@ fn keep(best: &mut Vec<Candidate>, c: Candidate, count: usize) {
 #[cfg(test)]
 mod tests {
     use super::super::filter::{Bilateral, BilateralParams};
-    use super::super::tracker::tests::SceneMap;
+    use super::super::tracker::tests::{scene, SceneMap, ROOM};
     use super::*;
-    use crate::sim::{NoiseModel, Scene, SceneOptions, SimulatedSensor};
-    use std::path::Path;
-
-    const ROOM: &str = include_str!("../../../../scenes/room.toml");
+    use crate::sim::{NoiseModel, SimulatedSensor};
 
     /// The room with clutter of different shapes and orientations, as a
     /// kitchen has: the bare room is boxes, whose edges and corners all
@@ -908,7 +905,7 @@ translation = [-0.3, 0.9, -0.2]
     #[test]
     fn a_frame_is_registered_to_a_map_seen_only_from_elsewhere() {
         let text = format!("{ROOM}\n{CLUTTER}");
-        let room = Scene::parse(&text, Path::new("room.toml"), &SceneOptions::default()).unwrap();
+        let room = scene(&text);
         let map = SceneMap {
             scene: &room,
             blind_below: 0,

@@ -830,9 +830,11 @@ pub(super) mod tests {
     use glam::Vec3;
     use std::path::Path;
 
-    const ROOM: &str = include_str!("../../../../scenes/room.toml");
+    /// The room scene of the repository.
+    pub(in crate::track) const ROOM: &str = include_str!("../../../../scenes/room.toml");
 
-    fn scene(text: &str) -> Scene {
+    /// A scene from its text.
+    pub(in crate::track) fn scene(text: &str) -> Scene {
         Scene::parse(text, Path::new("test.toml"), &SceneOptions::default()).unwrap()
     }
 
@@ -842,7 +844,7 @@ pub(super) mod tests {
     }
 
     /// Translation (metres) and rotation (degrees) between two poses.
-    fn pose_error(a: &Pose, b: &Pose) -> (f32, f32) {
+    pub(super) fn pose_error(a: &Pose, b: &Pose) -> (f32, f32) {
         let d = a.inverse().compose(b);
         (d.translation.length(), d.rotation_angle().to_degrees())
     }
@@ -1152,13 +1154,11 @@ pub(super) mod tests {
 /// explain (issue "tracking that does not give up").
 #[cfg(test)]
 mod recovery_tests {
-    use super::tests::SceneMap;
+    use super::tests::{pose_error as error, scene, SceneMap, ROOM};
     use super::*;
-    use crate::sim::{NoiseModel, PathSpec, Scene, SceneOptions, SimulatedSensor};
+    use crate::sim::{NoiseModel, PathSpec, Scene, SimulatedSensor};
     use glam::Vec3;
-    use std::path::Path;
 
-    const ROOM: &str = include_str!("../../../../scenes/room.toml");
     const TABLE: &str = include_str!("../../../../scenes/table.toml");
     /// One floor and one small box: everything horizontal rests on the box.
     const PLANE_AND_BOX: &str = r#"
@@ -1178,10 +1178,6 @@ size = [0.3, 0.25, 0.2]
 translation = [0.2, 0.225, -0.1]
 "#;
 
-    fn scene(text: &str) -> Scene {
-        Scene::parse(text, Path::new("test.toml"), &SceneOptions::default()).unwrap()
-    }
-
     /// The scene itself as the map: what a perfect fusion would predict.
     fn scene_map(scene: &Scene) -> SceneMap<'_> {
         SceneMap {
@@ -1189,11 +1185,6 @@ translation = [0.2, 0.225, -0.1]
             blind_below: 0,
             mesh: Default::default(),
         }
-    }
-
-    fn error(a: &Pose, b: &Pose) -> (f32, f32) {
-        let d = a.inverse().compose(b);
-        (d.translation.length(), d.rotation_angle().to_degrees())
     }
 
     /// Tracks the first `count` poses of the scene's 200-pose helix (the
