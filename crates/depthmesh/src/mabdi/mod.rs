@@ -401,6 +401,9 @@ fn close_up(
     patches: &mut Patches,
     remap: &mut Vec<u32>,
 ) -> Option<usize> {
+    if patches.triangles() == mesh.triangles.len() {
+        return None; // no holes: no need to look for one
+    }
     let first = mesh.triangles.iter().position(is_hole)?;
     let start = patches.start_of(first);
     if !votes.is_empty() {
