@@ -323,6 +323,49 @@ impl TsdfVolume {
     }
 }
 
+/// Steps back a crossing may take (see [`crossing`]): the last sample in
+/// front is at most one voxel diagonal past the surface, which along a
+/// ray grazing it at 15° is under four voxel steps.
+const MAX_STEPS_BACK: usize = 4;
+
+/// The depth where the trilinear field crosses zero between the last
+/// sample whose nearest voxel was in front of the surface, `(t0, f0)`
+/// (`f0` that voxel's distance), and the sample behind it, `(t, g)`.
+///
+/// The field at `t0` itself may already be behind the surface: its nearest
+/// voxel lies up to half a voxel away, on the other side of a surface
+/// between them. Interpolating from `f0` then puts the hit past the
+/// surface, by up to a voxel where a surface passes through a layer of
+/// voxel centres (a floor at a round height): in a fused floor that made
+/// depth steps of several millimetres and model normals off by degrees,
+/// which ICP read as constraints along the floor. So the marcher steps
+/// back from `t0` until the field is in front.
+fn crossing(
+    sampler: &mut Sampler<'_>,
+    origin: Vec3,
+    dir: Vec3,
+    step: f32,
+    (t0, f0): (f32, f32),
+    (t, g): (f32, f32),
+) -> f32 {
+    let (mut front, mut behind) = ((t0, sampler.sample(origin + dir * t0)), (t, g));
+    for _ in 0..MAX_STEPS_BACK {
+        match front.1 {
+            Some(v) if v <= 0.0 => {
+                behind = (front.0, v);
+                let back = front.0 - step;
+                front = (back, sampler.sample(origin + dir * back));
+            }
+            _ => break,
+        }
+    }
+    match front {
+        (ta, Some(ga)) if ga > 0.0 => ta + (behind.0 - ta) * ga / (ga - behind.1),
+        // No field in front to interpolate from: the nearest voxel's.
+        _ => t0 + (t - t0) * f0 / (f0 - g),
+    }
+}
+
 /// The rays of one cast: camera, pose and where along each ray the map is.
 struct Rays<'a> {
     /// Depth seen from the same pose, where rays may start.
@@ -431,11 +474,7 @@ impl<'a> Rays<'a> {
                         (_, None) => previous = None,
                         (_, Some(g)) if g >= 0.0 => previous = Some((t, g)),
                         (Some((t0, f0)), Some(g)) => {
-                            let g0 = sampler
-                                .sample(origin + dir * t0)
-                                .filter(|&g0| g0 > 0.0)
-                                .unwrap_or(f0);
-                            let hit = t0 + (t - t0) * g0 / (g0 - g);
+                            let hit = crossing(sampler, origin, dir, voxel_step, (t0, f0), (t, g));
                             return Ok(Some((hit, origin + dir * hit)));
                         }
                         (None, Some(_)) if first => return Err(()),
