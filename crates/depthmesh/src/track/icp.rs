@@ -272,8 +272,13 @@ pub fn apply_motion(pose: &Pose, omega: [f64; 3], t: [f64; 3]) -> Pose {
 
 /// How far a frame agrees with a model view, for verifying a pose found
 /// without a prediction: the fraction of the frame's measured points
-/// (normals or not) that land on a model point within `distance`, and the
-/// RMS distance of those.
+/// (normals or not) that land within `distance` of the model's surface,
+/// and the RMS distance of those. The surface at a model pixel is the
+/// plane through its point (the point alone where it has no normal): the
+/// view is coarser than the frame, and on a slanted or distant surface a
+/// point on it can lie centimetres from the pixel's centre (a correct
+/// pose on 7-Scenes matched 48 % of the frame point to point, 50 %
+/// being the bar).
 pub fn agreement(frame: &Level, model: &Level, frame_to_model: &Pose, distance: f32) -> (f64, f64) {
     let (mw, mh) = model.size();
     let Some(mk) = model.intrinsics else {
@@ -290,17 +295,21 @@ pub fn agreement(frame: &Level, model: &Level, frame_to_model: &Pose, distance: 
                     return (measured, near, squared);
                 }
                 let q = frame_to_model.transform_point(p);
-                let hit = mk.project(q).and_then(|uv| {
+                let off = mk.project(q).and_then(|uv| {
                     let (u, v) = (uv.x + 0.5, uv.y + 0.5);
-                    (u >= 0.0 && v >= 0.0 && u < mw as f32 && v < mh as f32)
-                        .then(|| model.points[v as usize * mw + u as usize])
+                    let i = v as usize * mw + u as usize;
+                    let inside = u >= 0.0 && v >= 0.0 && u < mw as f32 && v < mh as f32;
+                    (inside && model.points[i].z > 0.0).then(|| {
+                        let (m, n) = (model.points[i], model.normals[i]);
+                        if n == Vec3::ZERO {
+                            (q - m).length_squared()
+                        } else {
+                            n.dot(q - m).powi(2)
+                        }
+                    })
                 });
-                match hit {
-                    Some(m) if m.z > 0.0 && (q - m).length_squared() <= max_d2 => (
-                        measured + 1,
-                        near + 1,
-                        squared + f64::from((q - m).length_squared()),
-                    ),
+                match off {
+                    Some(d2) if d2 <= max_d2 => (measured + 1, near + 1, squared + f64::from(d2)),
                     _ => (measured + 1, near, squared),
                 }
             },
