@@ -501,11 +501,24 @@ impl Tracker {
 
     /// Tracking: the frame against the map's view from the last good pose,
     /// then against a finer view if the first cannot align it or leaves
-    /// it poorly conditioned; the better of the two.
+    /// it poorly conditioned; the better of the two. Without a measured
+    /// motion (the first frame), against the view at the frame's own
+    /// resolution alone.
     fn follow(&mut self, map: &dyn Mapper) -> Tracked {
         let mut best: Option<Tracked> = None;
         let mut iterations = 0;
-        for k in std::iter::once(self.model_intrinsics).chain(self.fallback_intrinsics) {
+        // The first frame may have moved a tenth of the view from the
+        // start, and what pins it along the view (a table's legs and edges,
+        // seen nearly edge-on) is a few pixels wide in a coarser view: the
+        // table scene's first frame landed 3–4 cm off against the quarter
+        // and half resolution views, within a millimetre against the full
+        // one. It is one frame, so the larger ray cast costs little.
+        let views = if self.velocity_known {
+            [Some(self.model_intrinsics), self.fallback_intrinsics]
+        } else {
+            [Some(self.intrinsics), None]
+        };
+        for k in views.into_iter().flatten() {
             let model = map.render_depth(&k, &self.last_good);
             if !self.model_view(&model, k) {
                 continue;
