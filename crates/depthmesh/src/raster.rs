@@ -21,6 +21,11 @@
 //!   rasterized independently and the layers merged by `max`. Keys order by
 //!   depth, then id, so the result does not depend on the drawing order.
 //!   Scratch buffers live in [`Rasterizer`] and are reused from frame to frame.
+//! * **AVX2 where the CPU has it** (detected at run time; the crate is built
+//!   for any x86-64): vertices are projected and small triangles drawn
+//!   eight at a time, larger ones eight pixels of a row at a time, with the
+//!   portable code's arithmetic operation for operation, so the image is
+//!   the same to the bit (a test checks).
 
 use crate::camera::{Intrinsics, Pose};
 use crate::image::DepthImage;
@@ -28,6 +33,9 @@ use crate::mesh::Aabb;
 use glam::Vec3;
 use rayon::prelude::*;
 use std::sync::{Mutex, PoisonError};
+
+#[cfg(target_arch = "x86_64")]
+mod avx2;
 
 /// Triangle id of pixels that no triangle covers.
 pub const NO_TRIANGLE: u32 = u32::MAX;
@@ -106,6 +114,33 @@ pub struct Rasterizer {
     chunk_visible: Vec<bool>,
     /// Per block of vertices: whether a chunk in view uses it.
     vertex_block_needed: Vec<bool>,
+    /// The code that projects the vertices and draws the triangles.
+    kernel: Kernel,
+}
+
+/// Which code projects the vertices and draws the triangles; both give
+/// the same bits.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+enum Kernel {
+    /// AVX2 ([`avx2`]) where the CPU has it, else the portable code.
+    #[default]
+    Fastest,
+    /// The portable code on any CPU: the reference for the vector path.
+    #[cfg_attr(not(test), allow(dead_code))]
+    Portable,
+}
+
+impl Kernel {
+    /// Whether the vector path runs, for a render of `vertices` vertices.
+    fn vector(self, vertices: usize) -> bool {
+        #[cfg(target_arch = "x86_64")]
+        return self == Kernel::Fastest && avx2::usable(vertices);
+        #[cfg(not(target_arch = "x86_64"))]
+        {
+            let _ = (self, vertices); // no vector path on other CPUs
+            false
+        }
+    }
 }
 /// View parameters shared by the passes of one render.
 #[derive(Clone, Copy)]
@@ -117,6 +152,8 @@ struct View {
     cx: f32,
     cy: f32,
     near: f32,
+    /// Whether AVX2 projects the vertices and draws the triangles (see [`Kernel`]).
+    vector: bool,
 }
 
 impl View {
@@ -186,6 +223,66 @@ impl Vertices<'_> {
             self.world_to_camera
                 .transform_point(self.positions[v as usize])
         })
+    }
+
+    /// The binning pass for a chunk of triangles (ids from `first`): draws
+    /// the small ones into `keys` (the whole image), eight at a time with
+    /// AVX2, and files the others under the bands they overlap.
+    fn draw_or_bin_chunk(
+        &self,
+        tris: &[[u32; 3]],
+        first: u32,
+        bins: &mut [Vec<u32>],
+        keys: &mut [u64],
+    ) {
+        let mut done = 0;
+        #[cfg(target_arch = "x86_64")]
+        if self.view.vector {
+            let groups = tris.chunks_exact(8);
+            done = tris.len() - groups.remainder().len();
+            for (g, group) in groups.enumerate() {
+                let at = 8 * g;
+                let group = group.try_into().expect("eight triangles");
+                // SAFETY: `vector` is only set when `avx2::usable` says so
+                // for these vertices.
+                let mut left = unsafe { avx2::draw_small(self, group, first + at as u32, keys) };
+                while left != 0 {
+                    let lane = left.trailing_zeros() as usize;
+                    left &= left - 1;
+                    self.draw_or_bin(&tris[at + lane], first + (at + lane) as u32, bins, keys);
+                }
+            }
+        }
+        for (i, t) in tris.iter().enumerate().skip(done) {
+            self.draw_or_bin(t, first + i as u32, bins, keys);
+        }
+    }
+
+    /// The binning pass for one triangle: drawn into `keys` (the whole
+    /// image) if small, else filed under the bands it overlaps.
+    #[inline]
+    fn draw_or_bin(&self, t: &[u32; 3], id: u32, bins: &mut [Vec<u32>], keys: &mut [u64]) {
+        if is_hole(t) {
+            return;
+        }
+        let screen = t.map(|v| self.screen[v as usize]);
+        if let Some(q) = self.on_grid(t) {
+            if row_count(&q) <= BAND_ROWS as i64 {
+                let plane = || screen_plane(&screen);
+                fill_triangle(&self.view, q, plane, id, 0, self.view.height - 1, keys);
+                return;
+            }
+        }
+        let span = if in_front(&screen) {
+            pixel_span(&self.view, &screen)
+        } else {
+            clipped_row_span(&self.view, &self.camera(t))
+        };
+        if let Some((r0, r1)) = span {
+            for bin in &mut bins[r0 / BAND_ROWS..=r1 / BAND_ROWS] {
+                bin.push(id);
+            }
+        }
     }
 
     /// Draws a triangle into rows `row0..=row1` (`keys` holds those rows).
@@ -283,6 +380,7 @@ impl Rasterizer {
             cx: intrinsics.cx,
             cy: intrinsics.cy,
             near: near.max(1e-6),
+            vector: self.kernel.vector(positions.len()),
         };
         target.resize(intrinsics.width, intrinsics.height);
         if view.width == 0 || view.height == 0 {
@@ -328,20 +426,14 @@ impl Rasterizer {
             .zip(self.vertex_block_needed.par_iter())
             .filter(|(_, needed)| **needed)
             .for_each(|(((screen, snapped), inp), _)| {
-                for ((s, q), &p) in screen.iter_mut().zip(snapped).zip(inp) {
-                    let c = world_to_camera.transform_point(p);
-                    (*s, *q) = if c.z >= view.near {
-                        let (u, v) = view.project(c);
-                        let q = if within_guard_band(u, v) {
-                            // Within ±2^21 (see `snap`), so no bits are lost.
-                            snap(&[u, v]).map(|x| x as i32)
-                        } else {
-                            OFF_GRID
-                        };
-                        ([u, v, 1.0 / c.z], q)
-                    } else {
-                        ([0.0, 0.0, -1.0], OFF_GRID)
-                    };
+                let mut done = 0;
+                #[cfg(target_arch = "x86_64")]
+                if view.vector {
+                    // SAFETY: `vector` is only set when the CPU has AVX2.
+                    done = unsafe { avx2::project(&view, &world_to_camera, inp, screen, snapped) };
+                }
+                for ((s, q), &p) in screen.iter_mut().zip(snapped).zip(inp).skip(done) {
+                    (*s, *q) = project_vertex(&view, &world_to_camera, p);
                 }
             });
 
@@ -384,35 +476,10 @@ impl Rasterizer {
                 let slot = rayon::current_thread_index().unwrap_or(0) % layers.len();
                 let mut keys = layers[slot].lock().unwrap_or_else(PoisonError::into_inner);
                 let first = (chunk * CHUNK_TRIANGLES) as u32;
-                let mut any = false;
-                for (i, t) in tris.iter().enumerate() {
-                    if is_hole(t) {
-                        continue;
-                    }
-                    let id = first + i as u32;
-                    let screen = t.map(|v| vertices.screen[v as usize]);
-                    if let Some(state) = state.as_deref_mut() {
-                        any |= visit(&mut state[i], &screen);
-                    }
-                    if let Some(q) = vertices.on_grid(t) {
-                        if row_count(&q) <= BAND_ROWS as i64 {
-                            let plane = || screen_plane(&screen);
-                            fill_triangle(&view, q, plane, id, 0, view.height - 1, &mut keys);
-                            continue;
-                        }
-                    }
-                    let span = if in_front(&screen) {
-                        pixel_span(&view, &screen)
-                    } else {
-                        clipped_row_span(&view, &vertices.camera(t))
-                    };
-                    if let Some((r0, r1)) = span {
-                        for bin in &mut bins[r0 / BAND_ROWS..=r1 / BAND_ROWS] {
-                            bin.push(id);
-                        }
-                    }
-                }
-                any
+                vertices.draw_or_bin_chunk(tris, first, bins, &mut keys);
+                state
+                    .as_deref_mut()
+                    .is_some_and(|state| visit_chunk(vertices.screen, tris, state, &visit))
             })
             .reduce(|| false, |a, b| a || b);
 
@@ -489,13 +556,7 @@ impl Rasterizer {
             .zip(triangles.par_chunks(CHUNK_TRIANGLES))
             .zip(self.chunk_visible.par_iter())
             .filter(|(_, &visible)| visible)
-            .map(|((state, tris), _)| {
-                let mut any = false;
-                for (s, t) in state.iter_mut().zip(tris).filter(|(_, t)| !is_hole(t)) {
-                    any |= visit(s, &t.map(|v| screen[v as usize]));
-                }
-                any
-            })
+            .map(|((state, tris), _)| visit_chunk(screen, tris, state, &visit))
             .reduce(|| false, |a, b| a || b)
     }
 
@@ -514,6 +575,40 @@ impl Rasterizer {
             }
         }
     }
+}
+
+/// A vertex's pixel coordinates and inverse depth, and those coordinates
+/// snapped (see [`Rasterizer::snapped`]); `[0, 0, −1]` and [`OFF_GRID`]
+/// when it is nearer than the near plane.
+#[inline]
+fn project_vertex(view: &View, world_to_camera: &Pose, p: Vec3) -> ([f32; 3], [i32; 2]) {
+    let c = world_to_camera.transform_point(p);
+    if c.z >= view.near {
+        let (u, v) = view.project(c);
+        let q = if within_guard_band(u, v) {
+            // Within ±2^21 (see `snap`), so no bits are lost.
+            snap(&[u, v]).map(|x| x as i32)
+        } else {
+            OFF_GRID
+        };
+        ([u, v, 1.0 / c.z], q)
+    } else {
+        ([0.0, 0.0, -1.0], OFF_GRID)
+    }
+}
+
+/// Calls `visit` on every triangle of a chunk that is not a hole, with its
+/// byte of `state` and its projected corners; returns whether any visit
+/// returned true.
+fn visit_chunk<F>(screen: &[[f32; 3]], tris: &[[u32; 3]], state: &mut [u8], visit: &F) -> bool
+where
+    F: Fn(&mut u8, &[[f32; 3]; 3]) -> bool,
+{
+    let mut any = false;
+    for (s, t) in state.iter_mut().zip(tris).filter(|(_, t)| !is_hole(t)) {
+        any |= visit(s, &t.map(|v| screen[v as usize]));
+    }
+    any
 }
 
 /// Whether a triangle is a hole: all three corners one vertex. A mesh that
@@ -871,7 +966,7 @@ fn snap(p: &[f32; 2]) -> [i64; 2] {
 #[inline(always)]
 fn fill_triangle(
     view: &View,
-    mut q: [[i64; 2]; 3],
+    q: [[i64; 2]; 3],
     plane: impl Fn() -> [f32; 3],
     id: u32,
     row0: usize,
@@ -893,15 +988,15 @@ fn fill_triangle(
         return;
     }
     // Twice the signed area decides the orientation; both faces are drawn, so
-    // a clockwise triangle is walked backwards.
+    // a clockwise triangle is walked backwards. Walking an edge backwards
+    // negates its edge function exactly, so that is done by a sign rather
+    // than a branch (orientations come as good as at random).
     let area =
         (q[1][0] - q[0][0]) * (q[2][1] - q[0][1]) - (q[2][0] - q[0][0]) * (q[1][1] - q[0][1]);
     if area == 0 {
         return;
     }
-    if area < 0 {
-        q.swap(1, 2);
-    }
+    let sign = area.signum();
     // Edge i: E(p) = (r − s) × (p − s), ≥ 0 inside.
     let mut e_row = [0i64; 3];
     let mut step_x = [0i64; 3];
@@ -909,7 +1004,7 @@ fn fill_triangle(
     let start = [px0 << SUBPIXEL_BITS, py0 << SUBPIXEL_BITS];
     for i in 0..3 {
         let (s, r) = (q[i], q[(i + 1) % 3]);
-        let (dx, dy) = (r[0] - s[0], r[1] - s[1]);
+        let (dx, dy) = (sign * (r[0] - s[0]), sign * (r[1] - s[1]));
         // Tie rule: a pixel centre exactly on an edge belongs to one side only.
         // The rule flips when the edge is walked the other way, which is how
         // the neighbouring triangle walks a shared edge.
@@ -932,6 +1027,24 @@ fn fill_triangle(
         return;
     }
     let [a, b, k] = plane();
+    #[cfg(target_arch = "x86_64")]
+    if view.vector && avx2::fits_rows(x1 - x0, y1 - y0) {
+        let edges = avx2::Edges {
+            e: e_row.map(|e| e as i32),
+            step_x: step_x.map(|e| e as i32),
+            step_y: step_y.map(|e| e as i32),
+        };
+        let rows = (py0 as usize - row0)..=(py1 as usize - row0);
+        let cols = px0 as usize..=px1 as usize;
+        let target = avx2::Target {
+            keys,
+            width: view.width,
+            row0,
+        };
+        // SAFETY: `vector` is only set when the CPU has AVX2.
+        unsafe { avx2::fill_rows(&edges, [a, b, k], id, rows, cols, target) };
+        return;
+    }
     for py in py0..=py1 {
         let mut e = e_row;
         let row = (py as usize - row0) * view.width;
@@ -1238,6 +1351,93 @@ mod tests {
                 }
             }
             assert!(checked > 10_000, "{checked}");
+        }
+    }
+
+    #[test]
+    fn the_vector_path_draws_bit_for_bit_what_the_portable_one_does() {
+        use rand::rngs::SmallRng;
+        use rand::{Rng, SeedableRng};
+        let k = Intrinsics {
+            width: 160,
+            height: 120,
+            fx: 128.0,
+            fy: 128.0,
+            cx: 80.0,
+            cy: 60.0,
+        };
+        let mut rng = SmallRng::seed_from_u64(7);
+        // Pixel-sized grid triangles and a soup of every size the passes
+        // meet: slivers, a few pixels wide, large, off the image, through
+        // the near plane, behind the camera, degenerate, and holes.
+        let made_from = Pose::look_at(Vec3::new(0.2, 0.4, -2.0), Vec3::ZERO, Vec3::Y);
+        let n = Vec3::new(0.1, 0.3, -1.0).normalize();
+        let (mut soup, mut soup_triangles) = depth_image_grid(&k, &made_from, n, 0.1);
+        for _ in 0..30_000 {
+            let centre = Vec3::new(
+                rng.gen_range(-3.0..3.0),
+                rng.gen_range(-2.5..2.5),
+                rng.gen_range(-1.0..6.0),
+            );
+            let size = 10f32.powf(rng.gen_range(-3.0..0.7));
+            let base = soup.len() as u32;
+            for _ in 0..3 {
+                let d = Vec3::new(
+                    rng.gen_range(-1.0..1.0),
+                    rng.gen_range(-1.0..1.0),
+                    rng.gen_range(-1.0..1.0),
+                );
+                soup.push(centre + size * d);
+            }
+            soup_triangles.push(match rng.gen_range(0..40) {
+                0 => [base; 3],
+                1 => [base, base + 1, base + 1],
+                _ => [base, base + 1, base + 2],
+            });
+        }
+        // Small triangles with corners exactly on pixel centres from the
+        // identity pose (with these intrinsics): their edges meet pixel
+        // centres exactly, so the tie rule decides.
+        let (mut ties, mut tie_triangles) = (Vec::new(), Vec::new());
+        for _ in 0..20_000 {
+            let z = [1.0, 2.0, 4.0][rng.gen_range(0..3)];
+            let (u, v) = (rng.gen_range(-2..162), rng.gen_range(-2..122));
+            let base = ties.len() as u32;
+            for _ in 0..3 {
+                let (du, dv) = (rng.gen_range(-3..=3), rng.gen_range(-3..=3));
+                let pixel = [u + du - 80, v + dv - 60].map(|p| p as f32 * z / 128.0);
+                ties.push(Vec3::new(pixel[0], pixel[1], z));
+            }
+            tie_triangles.push([base, base + 1, base + 2]);
+        }
+        let moved = Pose::look_at(
+            Vec3::new(0.25, 0.35, -1.9),
+            Vec3::new(0.0, 0.02, 0.0),
+            Vec3::Y,
+        );
+        let views = [
+            (&soup, &soup_triangles, made_from),
+            (&soup, &soup_triangles, moved),
+            (&ties, &tie_triangles, Pose::IDENTITY),
+        ];
+        for (positions, triangles, pose) in views {
+            let mut fastest = Rasterizer::new();
+            let mut portable = Rasterizer {
+                kernel: Kernel::Portable,
+                ..Rasterizer::new()
+            };
+            let (mut a, mut b) = (RenderTarget::default(), RenderTarget::default());
+            fastest.render(positions, triangles, &k, &pose, 0.05, &mut a);
+            portable.render(positions, triangles, &k, &pose, 0.05, &mut b);
+            let bits =
+                |r: &RenderTarget| r.depth.data.iter().map(|d| d.to_bits()).collect::<Vec<_>>();
+            assert_eq!(bits(&a), bits(&b));
+            assert_eq!(a.triangle, b.triangle);
+            let points = |r: &Rasterizer| {
+                let s = r.screen_points().iter().flatten().map(|x| x.to_bits());
+                (s.collect::<Vec<_>>(), r.snapped.clone())
+            };
+            assert_eq!(points(&fastest), points(&portable));
         }
     }
 }
