@@ -54,11 +54,11 @@ pub(super) unsafe fn draw_small(
     // Corner indices, clamped into the arrays: a lane with an index out of
     // range is left to the caller, whose indexing reports it.
     let last = _mm256_set1_epi32(v.snapped.len() as i32 - 1);
-    let lanes = _mm256_setr_epi32(0, 3, 6, 9, 12, 15, 18, 21);
-    let mut idx: Corners = [zero; 3];
+    // SAFETY: eight triangles are 24 indices.
+    let mut idx = deinterleave(tris.as_ptr().cast());
     let mut bad = zero;
-    for (c, idx) in idx.iter_mut().enumerate() {
-        let raw = _mm256_i32gather_epi32::<4>(tris.as_ptr().cast::<i32>().add(c), lanes);
+    for idx in &mut idx {
+        let raw = *idx;
         let clamped = _mm256_min_epu32(raw, last);
         bad = _mm256_or_si256(bad, not(_mm256_cmpeq_epi32(raw, clamped)));
         *idx = clamped;
@@ -356,13 +356,11 @@ pub(super) fn project(
     let t = world_to_camera.translation;
     let axes = [r.x_axis, r.y_axis, r.z_axis];
     let splat = _mm256_set1_ps;
-    let coords = _mm256_setr_epi32(0, 3, 6, 9, 12, 15, 18, 21);
     let groups = positions.chunks_exact(8);
     let done = positions.len() - groups.remainder().len();
     for (g, group) in groups.enumerate() {
-        let base = group.as_ptr().cast::<f32>();
-        // SAFETY: eight points are 24 floats from `base`.
-        let p = [0, 1, 2].map(|j| unsafe { _mm256_i32gather_ps::<4>(base.add(j), coords) });
+        // SAFETY: eight `Vec3`s (three `f32`s each, `repr(C)`) are 24 floats.
+        let p = unsafe { deinterleave(group.as_ptr().cast()) }.map(|c| _mm256_castsi256_ps(c));
         // `rotation * p + translation` in glam's order of operations.
         let camera = |row: fn(Vec3) -> f32, t: f32| {
             let sum = _mm256_mul_ps(splat(row(axes[0])), p[0]);
@@ -426,4 +424,26 @@ pub(super) fn project(
         }
     }
     done
+}
+
+/// The three components of eight consecutive triples of 32-bit values
+/// from `p`, one vector each: three loads, blends and lane permutations
+/// instead of gathers.
+///
+/// # Safety
+/// `p` must point to 24 readable 32-bit values.
+#[inline]
+#[target_feature(enable = "avx2")]
+unsafe fn deinterleave(p: *const __m256i) -> [__m256i; 3] {
+    let [v0, v1, v2] = [0, 1, 2].map(|i| _mm256_loadu_si256(p.cast::<u32>().add(8 * i).cast()));
+    // Lane l of `t` holds a component of triple `[0, 3, 6, 1, 4, 7, 2, 5][l]`
+    // for the first, and of those one and two further for the others.
+    let first = _mm256_blend_epi32::<0x24>(_mm256_blend_epi32::<0x92>(v0, v1), v2);
+    let second = _mm256_blend_epi32::<0x49>(_mm256_blend_epi32::<0x24>(v0, v1), v2);
+    let third = _mm256_blend_epi32::<0x92>(_mm256_blend_epi32::<0x49>(v0, v1), v2);
+    [
+        _mm256_permutevar8x32_epi32(first, _mm256_setr_epi32(0, 3, 6, 1, 4, 7, 2, 5)),
+        _mm256_permutevar8x32_epi32(second, _mm256_setr_epi32(1, 4, 7, 2, 5, 0, 3, 6)),
+        _mm256_permutevar8x32_epi32(third, _mm256_setr_epi32(2, 5, 0, 3, 6, 1, 4, 7)),
+    ]
 }
