@@ -158,15 +158,22 @@ impl Evidence<'_> {
             return *vote >= self.frames_to_remove;
         };
         let [d, beyond] = self.depths[pixel];
-        if d <= 0.0 {
-            return *vote >= self.frames_to_remove;
-        }
+        // Decided without branches (`&`, not `&&`): the outcome follows
+        // the image, and a branch on it would wait for every lookup above,
+        // where without one the lookups of neighbouring triangles overlap.
+        // No evidence without a measurement (NaN is not `<= 0` and counts).
+        let measured = (d > 0.0) | d.is_nan();
         let tol = self.threshold.at(z);
-        if beyond > 0.0 && z < beyond - tol {
-            *vote = vote.saturating_add(1);
-        } else if (d - z).abs() <= tol {
-            *vote = 0;
-        }
+        let contradicted = measured & (beyond > 0.0) & (z < beyond - tol);
+        let confirmed = measured & !contradicted & ((d - z).abs() <= tol);
+        let v = *vote;
+        *vote = if contradicted {
+            v.saturating_add(1)
+        } else if confirmed {
+            0
+        } else {
+            v
+        };
         *vote >= self.frames_to_remove
     }
 }
