@@ -1,0 +1,116 @@
+//! Tracking against a map fused from the simulated Kinect, as `simulate
+//! --map tsdf --track` does: the cases where the map's own view, not a
+//! perfect one, decides.
+
+use depthmesh::map::Mapper;
+use depthmesh::sim::{NoiseModel, PathSpec, Scene, SceneOptions, SimulatedSensor};
+use depthmesh::track::tracker::{Tracker, TrackerConfig, TrackerState};
+use depthmesh::tsdf::mapper::TsdfMapper;
+use depthmesh::tsdf::TsdfConfig;
+
+/// The table scene's first frame (16 cm and 3.6° from the start, no
+/// measured motion) tracked against the map of the start's frame, for
+/// every one of `seeds`; the worst position error (metres).
+fn first_frame_error(seeds: std::ops::Range<u64>) -> f32 {
+    let text = include_str!("../../../scenes/table.toml");
+    let scene = Scene::parse(text, "table.toml".as_ref(), &SceneOptions::default()).unwrap();
+    let poses = PathSpec::Helix.build(&scene, 200).unwrap();
+    seeds
+        .map(|seed| {
+            let mut sensor = SimulatedSensor::kinect(NoiseModel::Kinect, seed);
+            let k = sensor.intrinsics;
+            let mut map = TsdfMapper::new(TsdfConfig::new(0.01), k, 0.8, 4.0).unwrap();
+            map.integrate(&sensor.capture(&scene, 1, &poses[0]), &poses[0])
+                .unwrap();
+            let mut tracker = Tracker::new(TrackerConfig::default(), k, poses[0]).unwrap();
+            let t = tracker.track(&sensor.capture(&scene, 2, &poses[1]).depth, &map);
+            assert_eq!(t.lost, None, "seed {seed}");
+            poses[1].inverse().compose(&t.pose).translation.length()
+        })
+        .fold(0.0, f32::max)
+}
+
+#[test]
+fn the_table_scenes_first_frame_is_found_against_its_fused_map() {
+    // What pins the first motion along the view (the legs and the table
+    // top's ends, seen nearly edge-on) is a few pixels wide in a coarser
+    // model view: there the frame landed 3.3 and 4.3 cm off on seeds 0 and
+    // 5, and the whole run's ATE was 4.0 and 8.4 cm. Measured within 1 mm.
+    let worst = first_frame_error(0..6);
+    assert!(worst < 0.005, "worst {:.1} mm", worst * 1e3);
+}
+
+/// A desk on two side panels beside a stool, on a floor.
+const DESK: &str = r#"
+name = "desk"
+[helix]
+height = [0.9, 1.4]
+look_at = [[0.1, 0.45, 0.0], [0.1, 0.65, 0.0]]
+margin = 3.0
+turns = 2.0
+[[object]]
+name = "floor"
+shape = "box"
+size = [10.0, 0.1, 10.0]
+translation = [0.0, 0.05, 0.0]
+floor = true
+[[object]]
+name = "desk top"
+shape = "box"
+size = [1.4, 0.05, 0.6]
+translation = [0.2, 0.75, -0.1]
+[[object]]
+name = "side panel a"
+shape = "box"
+size = [0.04, 0.65, 0.6]
+translation = [-0.48, 0.425, -0.1]
+[[object]]
+name = "side panel b"
+shape = "box"
+size = [0.04, 0.65, 0.6]
+translation = [0.88, 0.425, -0.1]
+[[object]]
+name = "stool"
+shape = "cylinder"
+radius = 0.18
+height = 0.45
+translation = [0.3, 0.325, 0.5]
+"#;
+
+#[test]
+fn a_desk_seen_end_on_is_followed_without_sliding_along_the_view() {
+    // Frames 68-75 of the 200-frame helix look at the desk end-on, across
+    // a side panel. The model view's coarsest level (40×30) keeps normals
+    // on little but the floor; ICP started there slid along the view (from
+    // a map fused from the true poses up to frame 67 and a motion measured
+    // from them: 1.5 cm off at frame 70, 8 cm at 71, 60 cm by frame 75).
+    let scene = Scene::parse(DESK, "desk.toml".as_ref(), &SceneOptions::default()).unwrap();
+    let poses = PathSpec::Helix.build(&scene, 200).unwrap();
+    let mut sensor = SimulatedSensor::kinect(NoiseModel::Kinect, 4);
+    let k = sensor.intrinsics;
+    let mut map = TsdfMapper::new(TsdfConfig::new(0.01), k, 0.8, 4.0).unwrap();
+    let frame =
+        |sensor: &mut SimulatedSensor, i: usize| sensor.capture(&scene, i as u32 + 1, &poses[i]);
+    for (i, pose) in poses.iter().enumerate().take(66) {
+        map.integrate(&frame(&mut sensor, i), pose).unwrap();
+    }
+    let state = TrackerState {
+        last_good: poses[66],
+        velocity: poses[65].inverse().compose(&poses[66]),
+        lost_streak: 0,
+        velocity_known: true,
+        keyframe_codes: Vec::new(),
+        keyframe_poses: Vec::new(),
+    };
+    map.integrate(&frame(&mut sensor, 66), &poses[66]).unwrap();
+    let mut tracker = Tracker::restore(TrackerConfig::default(), k, state).unwrap();
+    for (i, pose) in poses.iter().enumerate().take(75).skip(67) {
+        let f = frame(&mut sensor, i);
+        let t = tracker.track(&f.depth, &map);
+        assert_eq!(t.lost, None, "frame {}", i + 1);
+        let error = pose.inverse().compose(&t.pose).translation.length();
+        // Measured at most 9 mm.
+        assert!(error < 0.015, "frame {}: {:.1} mm off", i + 1, error * 1e3);
+        map.integrate(&f, &t.pose).unwrap();
+    }
+}
