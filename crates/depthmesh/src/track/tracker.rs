@@ -502,8 +502,8 @@ impl Tracker {
     /// Tracking: the frame against the map's view from the last good pose,
     /// then against a finer view if the first cannot align it or leaves
     /// it poorly conditioned; the better of the two. Without a measured
-    /// motion (the first frame), against the view at the frame's own
-    /// resolution alone.
+    /// motion (the first frame, and the first after the camera was found
+    /// again), against the view at the frame's own resolution alone.
     fn follow(&mut self, map: &dyn Mapper) -> Tracked {
         let mut best: Option<Tracked> = None;
         let mut iterations = 0;
@@ -512,7 +512,8 @@ impl Tracker {
         // seen nearly edge-on) is a few pixels wide in a coarser view: the
         // table scene's first frame landed 3–4 cm off against the quarter
         // and half resolution views, within a millimetre against the full
-        // one. It is one frame, so the larger ray cast costs little.
+        // one. It is one frame in a run or after a loss, so the larger ray
+        // cast costs little.
         let views = if self.velocity_known {
             [Some(self.model_intrinsics), self.fallback_intrinsics]
         } else {
