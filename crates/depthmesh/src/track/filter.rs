@@ -6,9 +6,6 @@ use crate::error::{Error, Result};
 use crate::image::DepthImage;
 use rayon::prelude::*;
 
-/// Depth differences beyond this many standard deviations get no weight.
-const RANGE_CUTOFF: f32 = 3.0;
-
 /// Parameters of the bilateral filter.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct BilateralParams {
@@ -18,6 +15,17 @@ pub struct BilateralParams {
     pub sigma_space: f32,
     /// Standard deviation of the depth weight in metres.
     pub sigma_depth: f32,
+    /// Depth differences beyond this many standard deviations get no weight.
+    pub cutoff: f32,
+    /// `Some(max_shift)`: weigh each neighbour and its mirror image
+    /// through the pixel alike (the smaller of their weights), so that a
+    /// window cut by a depth edge, a missing pixel or the image border
+    /// stays symmetric (a one-sided window averages a slanted surface
+    /// towards its inside, a symmetric one keeps anything affine in the
+    /// pixel coordinates exactly: inverse depth of a plane, for one), and
+    /// leave out a pair whose mean is more than `max_shift` from the pixel
+    /// (it bends over a crease), so that no pixel moves further than that.
+    pub symmetric: Option<f32>,
 }
 
 impl Default for BilateralParams {
@@ -29,6 +37,8 @@ impl Default for BilateralParams {
             radius: 1,
             sigma_space: 1.0,
             sigma_depth: 0.03,
+            cutoff: 3.0,
+            symmetric: None,
         }
     }
 }
@@ -45,6 +55,8 @@ impl BilateralParams {
         for (name, v) in [
             ("sigma_space", self.sigma_space),
             ("sigma_depth", self.sigma_depth),
+            ("cutoff", self.cutoff),
+            ("max_shift", self.symmetric.unwrap_or(1.0)),
         ] {
             if !(v.is_finite() && v > 0.0) {
                 return Err(Error::parameter(
@@ -65,8 +77,10 @@ pub struct Bilateral {
     spatial: Vec<f32>,
     /// `log2(e) / (2σ²)`: the range weight is `2^(-d²·this)`.
     range_exponent: f32,
-    /// Squared depth difference of [`RANGE_CUTOFF`] standard deviations.
+    /// Squared depth difference of [`BilateralParams::cutoff`] standard deviations.
     max_difference2: f32,
+    /// [`BilateralParams::symmetric`]'s largest shift, if symmetric.
+    symmetric: Option<f32>,
 }
 
 impl Bilateral {
@@ -83,7 +97,8 @@ impl Bilateral {
             radius: params.radius as usize,
             spatial,
             range_exponent: std::f32::consts::LOG2_E / (2.0 * s2),
-            max_difference2: RANGE_CUTOFF * RANGE_CUTOFF * s2,
+            max_difference2: params.cutoff * params.cutoff * s2,
+            symmetric: params.symmetric,
         })
     }
 
@@ -101,54 +116,120 @@ impl Bilateral {
         }
     }
 
+    /// The weight of each of a mirror pair `a`, `b` through a pixel at
+    /// `centre` with spatial weight `ws`: the smaller of their range
+    /// weights, or none where their mean is more than `max_shift` from
+    /// `centre`. Branch-free, as [`Bilateral::range_weight`].
+    #[inline(always)]
+    fn pair_weight(&self, ws: f32, centre: f32, a: f32, b: f32, max_shift: f32) -> f32 {
+        let g = ws
+            * self
+                .range_weight(centre, a)
+                .min(self.range_weight(centre, b));
+        if (a + b - 2.0 * centre).abs() <= 2.0 * max_shift {
+            g
+        } else {
+            0.0
+        }
+    }
+
     /// Filters `input` into `out` (resized as needed). Pixels without depth
     /// stay without depth and never contribute.
     pub fn apply(&self, input: &DepthImage, out: &mut DepthImage) {
+        let w = input.width as usize;
+        self.apply_spans(input, out, |_| std::iter::once(0..w));
+    }
+
+    /// Filters, of each row `y` of `input`, only the runs of columns
+    /// `spans(y)` (clipped to the image) into `out` (resized, and zeroed,
+    /// when its size differs); every other pixel of `out` keeps its value.
+    /// For a caller that needs a few pixels of a frame.
+    pub fn apply_spans<S>(
+        &self,
+        input: &DepthImage,
+        out: &mut DepthImage,
+        spans: impl Fn(usize) -> S + Sync,
+    ) where
+        S: IntoIterator<Item = std::ops::Range<usize>>,
+    {
         let (w, h) = (input.width as usize, input.height as usize);
-        out.reset(input.width, input.height);
+        if (out.width, out.height) != (input.width, input.height) {
+            out.reset(input.width, input.height);
+        }
         let r = self.radius;
         let side = 2 * r + 1;
         let data = &input.data;
         out.data.par_chunks_mut(w).enumerate().for_each_init(
             || (vec![0.0f32; w], vec![0.0f32; w]),
             |(sum, weight), (y, row)| {
-                if y < r || y + r >= h || w <= 2 * r {
-                    for (x, o) in row.iter_mut().enumerate() {
-                        *o = self.at_border(data, w, h, x, y);
+                for span in spans(y) {
+                    let (a, b) = (span.start.min(w), span.end.min(w));
+                    if a >= b {
+                        continue;
                     }
-                    return;
-                }
-                // The interior of the row, one window offset at a time:
-                // each pass runs along contiguous rows and vectorises.
-                let n = w - 2 * r;
-                let centre = &data[y * w + r..y * w + r + n];
-                let (sum, weight) = (&mut sum[..n], &mut weight[..n]);
-                sum.fill(0.0);
-                weight.fill(0.0);
-                for (k, &ws) in self.spatial.iter().enumerate() {
-                    let start = (y + k / side - r) * w + k % side;
-                    let neighbours = &data[start..start + n];
-                    for (((s, wt), &c), &d) in sum
-                        .iter_mut()
-                        .zip(weight.iter_mut())
-                        .zip(centre)
-                        .zip(neighbours)
-                    {
-                        let g = ws * self.range_weight(c, d);
-                        *s += g * d;
-                        *wt += g;
+                    if y < r || y + r >= h || w <= 2 * r {
+                        for (x, o) in row.iter_mut().enumerate().take(b).skip(a) {
+                            *o = self.at_border(data, w, h, x, y);
+                        }
+                        continue;
                     }
-                }
-                for (((o, &c), &s), &wt) in row[r..r + n]
-                    .iter_mut()
-                    .zip(centre)
-                    .zip(&*sum)
-                    .zip(&*weight)
-                {
-                    *o = if c > 0.0 { s / wt } else { 0.0 };
-                }
-                for x in (0..r).chain(w - r..w) {
-                    row[x] = self.at_border(data, w, h, x, y);
+                    // The interior of the span, one window offset at a time:
+                    // each pass runs along contiguous rows and vectorises.
+                    let (ia, ib) = (a.max(r), b.min(w - r));
+                    if ia < ib {
+                        let n = ib - ia;
+                        let centre = &data[y * w + ia..y * w + ib];
+                        let (sum, weight) = (&mut sum[..n], &mut weight[..n]);
+                        sum.fill(0.0);
+                        weight.fill(0.0);
+                        let neighbours = |k: usize| {
+                            let start = (y + k / side - r) * w + ia + k % side - r;
+                            &data[start..start + n]
+                        };
+                        if let Some(max_shift) = self.symmetric {
+                            // Offsets in pairs through the centre, then the centre.
+                            let half = self.spatial.len() / 2;
+                            for (k, &ws) in self.spatial[..half].iter().enumerate() {
+                                let (near, far) = (neighbours(k), neighbours(2 * half - k));
+                                for ((((s, wt), &c), &a), &b) in sum
+                                    .iter_mut()
+                                    .zip(weight.iter_mut())
+                                    .zip(centre)
+                                    .zip(near)
+                                    .zip(far)
+                                {
+                                    let g = self.pair_weight(ws, c, a, b, max_shift);
+                                    *s += g * (a + b);
+                                    *wt += 2.0 * g;
+                                }
+                            }
+                            for ((s, wt), &c) in sum.iter_mut().zip(weight.iter_mut()).zip(centre) {
+                                *s += c;
+                                *wt += 1.0;
+                            }
+                        } else {
+                            for (k, &ws) in self.spatial.iter().enumerate() {
+                                for (((s, wt), &c), &d) in sum
+                                    .iter_mut()
+                                    .zip(weight.iter_mut())
+                                    .zip(centre)
+                                    .zip(neighbours(k))
+                                {
+                                    let g = ws * self.range_weight(c, d);
+                                    *s += g * d;
+                                    *wt += g;
+                                }
+                            }
+                        }
+                        for (((o, &c), &s), &wt) in
+                            row[ia..ib].iter_mut().zip(centre).zip(&*sum).zip(&*weight)
+                        {
+                            *o = if c > 0.0 { s / wt } else { 0.0 };
+                        }
+                    }
+                    for x in (a..b).filter(|&x| x < r || x >= w - r) {
+                        row[x] = self.at_border(data, w, h, x, y);
+                    }
                 }
             },
         );
@@ -167,8 +248,18 @@ impl Bilateral {
         for yy in y.saturating_sub(r)..=(y + r).min(h - 1) {
             for xx in x.saturating_sub(r)..=(x + r).min(w - 1) {
                 let d = data[yy * w + xx];
-                let g =
-                    self.spatial[(yy + r - y) * side + (xx + r - x)] * self.range_weight(centre, d);
+                let ws = self.spatial[(yy + r - y) * side + (xx + r - x)];
+                let g = match self.symmetric {
+                    Some(max_shift) => {
+                        // The mirror image through the pixel, if in the image.
+                        let (my, mx) = ((2 * y).wrapping_sub(yy), (2 * x).wrapping_sub(xx));
+                        if my >= h || mx >= w {
+                            continue;
+                        }
+                        self.pair_weight(ws, centre, d, data[my * w + mx], max_shift)
+                    }
+                    None => ws * self.range_weight(centre, d),
+                };
                 sum += g * d;
                 weight += g;
             }
@@ -217,6 +308,19 @@ mod tests {
         let mut out = DepthImage::default();
         filter.apply(&depth, &mut out);
         assert_eq!(out.data[0], 0.0);
+        // Any span of a row is filtered as the whole row is.
+        let mut part = DepthImage::default();
+        let spans = |y: usize| [y % 7..y % 7 + 5, y % 7 + 9..y % 7 + 30];
+        filter.apply_spans(&depth, &mut part, spans);
+        for (i, (&p, &o)) in part.data.iter().zip(&out.data).enumerate() {
+            let (x, y) = (i % w as usize, i / w as usize);
+            let want = if spans(y).iter().any(|s| s.contains(&x)) {
+                o
+            } else {
+                0.0
+            };
+            assert_eq!(p.to_bits(), want.to_bits(), "({x},{y})");
+        }
         for y in 2..h - 2 {
             for x in 2..w - 2 {
                 let want = if x < 20 { 1.0 } else { 2.0 };
