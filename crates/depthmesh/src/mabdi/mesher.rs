@@ -7,6 +7,7 @@ use crate::camera::{Intrinsics, Pose};
 use crate::image::DepthImage;
 use crate::mabdi::classify::PixelClass;
 use glam::Vec3;
+use rayon::prelude::*;
 
 const NO_VERTEX: u32 = u32::MAX;
 
@@ -38,22 +39,37 @@ impl DepthMesher {
         Self::default()
     }
 
-    /// Number of triangles [`DepthMesher::mesh`] would make, without making them.
-    pub fn count(classes: &[PixelClass], width: u32, keep: impl Fn(PixelClass) -> bool) -> usize {
+    /// Number of triangles [`DepthMesher::mesh`] would make, without making
+    /// them: rows of blocks in parallel, each walked without branches.
+    pub fn count(
+        classes: &[PixelClass],
+        width: u32,
+        keep: impl Fn(PixelClass) -> bool + Sync,
+    ) -> usize {
         let w = width as usize;
         if w < 2 {
             return 0;
         }
         let h = classes.len() / w;
-        let mut n = 0;
-        for r in 0..h.saturating_sub(1) {
-            for c in 0..w - 1 {
-                for t in block_triangles(r * w + c, w) {
-                    n += t.iter().all(|&p| keep(classes[p])) as usize;
+        (0..h.saturating_sub(1))
+            .into_par_iter()
+            .map(|r| {
+                let (top, bottom) = (
+                    &classes[r * w..(r + 1) * w],
+                    &classes[(r + 1) * w..(r + 2) * w],
+                );
+                let (mut top_left, mut bottom_left) = (keep(top[0]), keep(bottom[0]));
+                let mut n = 0;
+                for (&t, &b) in top[1..].iter().zip(&bottom[1..]) {
+                    let (top_right, bottom_right) = (keep(t), keep(b));
+                    // The block's two triangles, as in `block_triangles`.
+                    n += usize::from(top_left & bottom_left & top_right)
+                        + usize::from(top_right & bottom_left & bottom_right);
+                    (top_left, bottom_left) = (top_right, bottom_right);
                 }
-            }
-        }
-        n
+                n
+            })
+            .sum()
     }
 
     /// Appends to `positions`/`triangles` the world-space surface of the
