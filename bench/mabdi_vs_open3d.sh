@@ -41,7 +41,7 @@ print(f"run: {summary['scene']}, {summary['frames']} iterations, noise {summary[
       f"final M {summary['triangles']} triangles ({100 * summary['elements_vs_naive']:.2f} % of the traditional method)", file=out)
 print(f"depthmesh, median whole mapping iteration   {med('ms'):7.1f} ms (mean {statistics.mean(float(r['ms']) for r in rows):.1f})", file=out)
 print(f"  (the simulated sensor's render of D, not in it: mean {1000 * summary['sensor_seconds'] / summary['frames']:.1f} ms)", file=out)
-for k in ("render_ms", "absence_ms", "classify_ms", "removal_ms", "mesh_ms", "settle_ms"):
+for k in ("render_ms", "absence_ms", "classify_ms", "removal_ms", "smooth_ms", "mesh_ms", "settle_ms"):
     if k in rows[0]:
         print(f"  median {k:<26}  {med(k):7.1f} ms", file=out)
 print(f"Open3D RaycastingScene, E of the final M ({theirs['triangles']} triangles, {theirs['images']} poses)  {theirs['median_ms']:7.1f} ms", file=out)

@@ -104,6 +104,7 @@ pub fn run(args: &DemoArgs, quiet: bool) -> Result<()> {
             voxel: 0.01,
             keep_removed: false,
             no_settle: false,
+            no_smooth: false,
             track: false,
             planes: PlanesArgs::default(),
             dashboard: true,

@@ -84,6 +84,10 @@ pub struct SimulateArgs {
     /// settled surface (mabdi).
     #[arg(long)]
     pub no_settle: bool,
+    /// Mesh novel surface from the measured depth as it came, not smoothed
+    /// on each surface first (mabdi).
+    #[arg(long)]
+    pub no_smooth: bool,
     /// Voxel size in metres (tsdf; truncation 4 voxels).
     #[arg(long, default_value_t = 0.01, allow_negative_numbers = true)]
     pub voxel: f32,
@@ -310,6 +314,9 @@ fn map_config(args: &SimulateArgs, sensor: &SimulatedSensor) -> MapConfig {
     }
     if args.no_settle {
         mabdi.settling = None;
+    }
+    if args.no_smooth {
+        mabdi.smoothing = None;
     }
     match args.map {
         MapKind::Mabdi => MapConfig::Mabdi(mabdi),
