@@ -87,6 +87,10 @@ pub struct MapArgs {
     pub remesh_every: u32,
     #[command(flatten)]
     pub bounded: ActiveRadiusArgs,
+    /// Mesh novel surface from the measured depth as it came, not smoothed
+    /// on each surface first (mabdi).
+    #[arg(long)]
+    pub no_smooth: bool,
 }
 
 impl MapArgs {
@@ -98,6 +102,9 @@ impl MapArgs {
         }
         if self.tsdf.min_weight != 1 && self.map != RealMap::Tsdf {
             bail!("--min-weight applies to --map tsdf only");
+        }
+        if self.no_smooth && self.map != RealMap::Mabdi {
+            bail!("--no-smooth applies to --map mabdi only");
         }
         self.bounded.check(self.map == RealMap::Tsdf)
     }
@@ -117,7 +124,13 @@ impl MapArgs {
             }
             // The thesis's thresholds are calibrated for a Kinect's 0.8–4 m
             // z-buffer, whatever depth range the frames are read with.
-            RealMap::Mabdi => MapConfig::Mabdi(MabdiConfig::thesis(intrinsics, 0.8, 4.0)),
+            RealMap::Mabdi => {
+                let mut mabdi = MabdiConfig::thesis(intrinsics, 0.8, 4.0);
+                if self.no_smooth {
+                    mabdi.smoothing = None;
+                }
+                MapConfig::Mabdi(mabdi)
+            }
             RealMap::Planes => MapConfig::Planes(PlanesSettings {
                 config: self.planes.config(),
                 remesh_every: self.remesh_every,

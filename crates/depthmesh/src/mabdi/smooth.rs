@@ -230,31 +230,65 @@ mod tests {
         }
     }
 
-    #[test]
-    fn noise_on_a_plane_is_reduced() {
+    /// RMS error of `img` against `truth`.
+    fn rms(img: &DepthImage, truth: &DepthImage) -> f32 {
+        let sum: f32 = img
+            .data
+            .iter()
+            .zip(&truth.data)
+            .map(|(a, b)| (a - b) * (a - b))
+            .sum();
+        (sum / img.data.len() as f32).sqrt()
+    }
+
+    /// `truth` with uniform noise of σ = 0.2·τ(z), the thesis's.
+    fn noisy(truth: &DepthImage, novelty: Threshold) -> DepthImage {
         use rand::{rngs::SmallRng, Rng, SeedableRng};
-        let k = Intrinsics::from_vertical_fov(160, 120, 60.0);
-        let novelty = Threshold::thesis(0.8, 4.0);
-        let truth = plane_image(&k, [0.2, 0.0, 1.0], 2.0);
         let mut rng = SmallRng::seed_from_u64(7);
         let mut noisy = truth.clone();
         for z in &mut noisy.data {
-            // σ of the thesis's noise: 0.2 of the novelty threshold.
             *z += 0.2 * novelty.at(*z) * (rng.gen::<f32>() - 0.5) * 12f32.sqrt();
         }
-        let rms = |img: &DepthImage| {
-            let sum: f32 = img
-                .data
-                .iter()
-                .zip(&truth.data)
-                .map(|(a, b)| (a - b) * (a - b))
-                .sum();
-            (sum / img.data.len() as f32).sqrt()
+        noisy
+    }
+
+    #[test]
+    fn noise_on_a_plane_is_reduced() {
+        let k = Intrinsics::from_vertical_fov(160, 120, 60.0);
+        let novelty = Threshold::thesis(0.8, 4.0);
+        let truth = plane_image(&k, [0.2, 0.0, 1.0], 2.0);
+        let noisy = noisy(&truth, novelty);
+        let before = rms(&noisy, &truth);
+        let after = rms(
+            Smoother::default()
+                .apply(&noisy, &novel(&noisy), Smoothing { radius: 2 }, novelty)
+                .unwrap(),
+            &truth,
+        );
+        assert!(after < before / 3.0, "RMS error {before} -> {after}");
+    }
+
+    #[test]
+    fn a_threshold_in_metres_smooths_depth_in_metres_at_the_novel_pixels() {
+        let k = Intrinsics::from_vertical_fov(160, 120, 60.0);
+        let novelty = Threshold::Metres(0.05);
+        let truth = plane_image(&k, [0.0, 0.0, 1.0], 1.5);
+        let noisy = noisy(&truth, novelty);
+        let mut classes = novel(&noisy);
+        classes[..160 * 60].fill(PixelClass::Known);
+        let mut smoother = Smoother::default();
+        let out = smoother
+            .apply(&noisy, &classes, Smoothing { radius: 2 }, novelty)
+            .unwrap();
+        let lower = |img: &DepthImage| DepthImage {
+            width: 160,
+            height: 60,
+            data: img.data[160 * 60..].to_vec(),
         };
-        let before = rms(&noisy);
-        let after = rms(Smoother::default()
-            .apply(&noisy, &novel(&noisy), Smoothing { radius: 2 }, novelty)
-            .unwrap());
+        let (before, after) = (
+            rms(&lower(&noisy), &lower(&truth)),
+            rms(&lower(out), &lower(&truth)),
+        );
         assert!(after < before / 3.0, "RMS error {before} -> {after}");
     }
 }
