@@ -457,7 +457,14 @@ impl Group<'_> {
     ) -> Result<(Mesh, Vec<u8>)> {
         let mesh = self.mesh;
         let mut local = Mesh::default();
-        let mut index = HashMap::new();
+        // The group's vertices are a run of M's (a patch's vertices are), so
+        // their new indices are looked up by offset in that run.
+        let triangles = &mesh.triangles[self.range.clone()];
+        let (first, end) = triangles
+            .iter()
+            .flatten()
+            .fold((u32::MAX, 0), |(lo, hi), &v| (lo.min(v), hi.max(v + 1)));
+        let mut index = vec![u32::MAX; end.saturating_sub(first) as usize];
         let mut locked = Vec::new();
         let mut voted = HashMap::new();
         let to_camera = pose.inverse();
@@ -468,16 +475,17 @@ impl Group<'_> {
             }
             let vote = self.votes.get(t).copied().unwrap_or(0);
             let tri = mesh.triangles[t].map(|v| {
-                let i = *index.entry(v).or_insert_with(|| {
+                let i = &mut index[(v - first) as usize];
+                if *i == u32::MAX {
                     let p = mesh.positions[v as usize];
                     nearest = nearest.min(to_camera.transform_point(p).z);
                     local.positions.push(p);
                     local.colors.push(mesh.colors[v as usize]);
                     locked.push(self.seams.contains(v));
-                    local.positions.len() as u32 - 1
-                });
-                locked[i as usize] |= vote > 0;
-                i
+                    *i = local.positions.len() as u32 - 1;
+                }
+                locked[*i as usize] |= vote > 0;
+                *i
             });
             if vote > 0 {
                 voted.insert(corner_key(&local, &tri), vote);
