@@ -44,8 +44,20 @@ pub struct Settling {
     pub error: f32,
 }
 
-/// Triangles per simplification group: two of the mesher's 64×64-pixel tiles.
+/// Triangles per simplification group at most: two of the mesher's
+/// 64×64-pixel tiles.
 const GROUP: usize = 2 * 64 * 64 * 2;
+/// Triangles per simplification group at least (unless the patch is smaller):
+/// a quarter of a tile, so that seams stay a small part of a group.
+const MIN_GROUP: usize = 64 * 64 / 2;
+
+/// Triangles per simplification group for a patch of `triangles`: at least
+/// two groups where it has room for them, so that a patch settles on two
+/// cores (one iteration's patch is often smaller than one group), and the
+/// same split however many threads run, so M does not depend on them.
+fn group_size(triangles: usize) -> usize {
+    triangles.div_ceil(2).clamp(MIN_GROUP, GROUP)
+}
 
 /// One iteration's addition to M.
 #[derive(Clone, Copy, Debug)]
@@ -299,10 +311,11 @@ impl Patches {
         let mut jobs: Vec<(usize, std::ops::Range<usize>)> = Vec::new();
         for &i in &ready {
             let (start, end) = (starts[i], starts[i] + self.patches[i].slots);
+            let size = group_size(self.patches[i].len);
             let (mut from, mut live) = (start, 0);
             for t in start..end {
                 live += usize::from(!is_hole(&mesh.triangles[t]));
-                if live == GROUP || t + 1 == end {
+                if live == size || t + 1 == end {
                     jobs.push((i, from..t + 1));
                     (from, live) = (t + 1, 0);
                 }
