@@ -32,6 +32,17 @@ impl Threshold {
         }
     }
 
+    /// `(a, b)` with the threshold in metres at depth `z` equal to `a + b·z²`,
+    /// for loops that should not branch on the kind of threshold.
+    pub fn quadratic(&self) -> (f32, f32) {
+        match *self {
+            Threshold::Normalised { value, near, far } => {
+                (0.0, value * (far - near) / (far * near))
+            }
+            Threshold::Metres(m) => (m, 0.0),
+        }
+    }
+
     /// The threshold in metres at depth `z` metres.
     #[inline]
     pub fn at(&self, z: f32) -> f32 {
@@ -80,31 +91,32 @@ pub fn classify(
     if w == 0 {
         return 0;
     }
+    let (b0, b1) = boundary.quadratic();
+    let (n0, n1) = novelty.quadratic();
+    let valid = |v: f32| v > 0.0 && v < f32::INFINITY;
     out.par_chunks_mut(w)
         .enumerate()
         .map(|(r, row)| {
             let d_row = &depth.data[r * w..(r + 1) * w];
             let e_row = &expected.data[r * w..(r + 1) * w];
-            let up = (r > 0).then(|| &depth.data[(r - 1) * w..r * w]);
+            // The first row and column compare with themselves: never a jump.
+            let up = &depth.data[r.saturating_sub(1) * w..][..w];
             let mut novel = 0;
+            // Without branches on the data, so that the row vectorises.
             for c in 0..w {
-                let d = d_row[c];
-                if !(d > 0.0 && d.is_finite()) {
-                    continue; // stays Invalid
-                }
-                let jump = boundary.at(d);
-                let differs = |n: f32| n > 0.0 && n < f32::INFINITY && (d - n).abs() > jump;
-                row[c] = if (c > 0 && differs(d_row[c - 1])) || up.is_some_and(|u| differs(u[c])) {
-                    PixelClass::Boundary
-                } else {
-                    let e = e_row[c];
-                    if e <= 0.0 || (d - e).abs() > novelty.at(d) {
-                        novel += 1;
-                        PixelClass::Novel
-                    } else {
-                        PixelClass::Known
-                    }
+                let (d, e) = (d_row[c], e_row[c]);
+                let jump = b0 + b1 * d * d;
+                let differs = |n: f32| valid(n) & ((d - n).abs() > jump);
+                let edge = differs(d_row[c.saturating_sub(1)]) | differs(up[c]);
+                let new = (e <= 0.0) | ((d - e).abs() > n0 + n1 * d * d);
+                let class = match (valid(d), edge, new) {
+                    (false, _, _) => PixelClass::Invalid,
+                    (true, true, _) => PixelClass::Boundary,
+                    (true, false, true) => PixelClass::Novel,
+                    (true, false, false) => PixelClass::Known,
                 };
+                novel += usize::from(class == PixelClass::Novel);
+                row[c] = class;
             }
             novel
         })
