@@ -24,6 +24,8 @@ const TILE: usize = 64;
 #[derive(Debug, Default)]
 pub struct DepthMesher {
     vertex_of_pixel: Vec<u32>,
+    /// Per row of pixels, whether any of its pixels is kept.
+    row_kept: Vec<bool>,
 }
 
 /// The two triangles of the block whose top-left pixel is `i`, as pixel
@@ -81,7 +83,7 @@ impl DepthMesher {
         &mut self,
         depth: &DepthImage,
         classes: &[PixelClass],
-        keep: impl Fn(PixelClass) -> bool,
+        keep: impl Fn(PixelClass) -> bool + Sync,
         intrinsics: &Intrinsics,
         pose: &Pose,
         positions: &mut Vec<Vec3>,
@@ -94,6 +96,12 @@ impl DepthMesher {
         }
         self.vertex_of_pixel.clear();
         self.vertex_of_pixel.resize(w * h, NO_VERTEX);
+        // Rows of blocks with an empty row of pixels make no triangle: most
+        // of a frame is not novel once the map has seen it.
+        classes
+            .par_chunks(w)
+            .map(|row| row.iter().any(|&c| keep(c)))
+            .collect_into_vec(&mut self.row_kept);
         let before = triangles.len();
         // Tile by tile rather than row by row: each run of triangles (and
         // their vertices) then covers a compact patch of surface, which lets
@@ -102,6 +110,9 @@ impl DepthMesher {
         for tile_row in (0..rows).step_by(TILE) {
             for tile_column in (0..columns).step_by(TILE) {
                 for r in tile_row..(tile_row + TILE).min(rows) {
+                    if !(self.row_kept[r] && self.row_kept[r + 1]) {
+                        continue;
+                    }
                     for c in tile_column..(tile_column + TILE).min(columns) {
                         for t in block_triangles(r * w + c, w) {
                             if !t.iter().all(|&p| keep(classes[p])) {
