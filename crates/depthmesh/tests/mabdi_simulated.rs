@@ -93,8 +93,8 @@ fn noise_free_table_is_accurate_compact_and_levels_off() {
         "second turn added {:.2}%",
         second_turn * 100.0
     );
-    // Measured 0.22 % of the traditional method (as in the README; 0.48 %
-    // while patch outlines were not simplified); 0.3 % is a third above it,
+    // Measured 0.25 % of the traditional method (as in the README; 0.48 %
+    // while patch outlines were not simplified); 0.3 % is a fifth above it,
     // and the target is 2 %.
     let ratio = final_count as f64 / naive_total as f64;
     assert!(

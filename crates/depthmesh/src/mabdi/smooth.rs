@@ -44,7 +44,7 @@ const CUTOFF: f32 = 2.0;
 /// with no limit, the table lost a triangle to removal (its surface rounded
 /// off at a table leg's foot); at 0.25·τ(z) the bunnies' M was 1.8× as
 /// large and 88 % of it within 5 mm (a pixel whose own noise is large loses
-/// all its pairs); at 0.5·τ(z) M is 211,000 triangles, 96 % within 5 mm,
+/// all its pairs); at 0.5·τ(z) M was 211,000 triangles, 96 % within 5 mm,
 /// and the noise-free table keeps 99.92 % of its M within 5 mm.
 const MAX_SHIFT: f32 = 0.5;
 
