@@ -143,6 +143,18 @@ fn status(url: &str, site: &str) -> serde_json::Value {
     ]))
 }
 
+/// The site's status, or `None` while it does not exist yet: the processes
+/// just started have not created it (a loop polling right after starting
+/// them met that now and then).
+fn status_once_there(url: &str, site: &str) -> Option<serde_json::Value> {
+    let output = depthmesh(&["cluster", "status", "--nats", url, "--site", site]);
+    if !output.status.success() && String::from_utf8_lossy(&output.stderr).contains("no such site")
+    {
+        return None;
+    }
+    Some(json(&output))
+}
+
 #[test]
 #[ignore = "needs nats-server: run by .ci/cluster"]
 fn a_worker_killed_halfway_loses_no_frame_and_fuses_none_twice() {
@@ -176,7 +188,11 @@ fn a_worker_killed_halfway_loses_no_frame_and_fuses_none_twice() {
     // Halfway through the two seconds of frames, once w2 holds shards.
     let deadline = Instant::now() + Duration::from_secs(20);
     loop {
-        let s = status(url, "kill");
+        let Some(s) = status_once_there(url, "kill") else {
+            assert!(Instant::now() < deadline, "the site never appeared");
+            std::thread::sleep(Duration::from_millis(100));
+            continue;
+        };
         let held = s["shards"]
             .as_array()
             .unwrap()
@@ -318,7 +334,10 @@ fn a_sensor_without_poses_is_tracked_once_even_when_its_tracker_dies() {
     let deadline = Instant::now() + Duration::from_secs(30);
     let killed = loop {
         assert!(Instant::now() < deadline, "no tracker published frames");
-        let s = status(url, "track");
+        let Some(s) = status_once_there(url, "track") else {
+            std::thread::sleep(Duration::from_millis(100));
+            continue;
+        };
         let posed = s["sensors"]["a"]["frames"]["posed"].as_u64().unwrap_or(0);
         let busy = s["trackers"]
             .as_array()
