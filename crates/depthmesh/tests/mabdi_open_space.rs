@@ -19,10 +19,15 @@ fn scene(text: &str) -> Scene {
     Scene::parse(text, "open_space.toml".as_ref(), &options).unwrap()
 }
 
-/// The thesis's sensor at half resolution with its noise (eq. 4.2).
-fn sensor() -> SimulatedSensor {
+/// The thesis's sensor at half resolution.
+const HALF: (u32, u32) = (320, 240);
+/// The thesis's sensor at its own resolution.
+const FULL: (u32, u32) = (640, 480);
+
+/// The thesis's sensor at `resolution` with its noise (eq. 4.2).
+fn sensor((width, height): (u32, u32)) -> SimulatedSensor {
     SimulatedSensor::new(
-        Intrinsics::from_vertical_fov(320, 240, 60.0),
+        Intrinsics::from_vertical_fov(width, height, 60.0),
         0.8,
         4.0,
         NoiseModel::ZBuffer { sigma: 0.002 },
@@ -71,16 +76,17 @@ impl Counter {
     }
 }
 
-/// Runs MABDI over the helix; returns the per-iteration counts and M after
-/// each of the iterations `keep` (1-based).
+/// Runs MABDI over the helix seen at `resolution`; returns the
+/// per-iteration counts and M after each of the iterations `keep` (1-based).
 fn run(
+    resolution: (u32, u32),
     scene: &Scene,
     iterations: u32,
     removal: bool,
     counter: &Counter,
     keep: &[u32],
 ) -> (Vec<Vec<usize>>, Vec<Mesh>) {
-    let mut sensor = sensor();
+    let mut sensor = sensor(resolution);
     let poses = PathSpec::Helix.build(scene, iterations).unwrap();
     let mut config = MabdiConfig::thesis(sensor.intrinsics, sensor.near, sensor.far);
     if !removal {
@@ -105,7 +111,12 @@ fn object_removed_in_front_of_open_space_leaves_the_map() {
     // The post is taken away at iteration 16; at 30 it has been gone for 15.
     let scene = scene(OPEN_SPACE);
     let counter = Counter::new(&scene, &["post", "drum"]);
-    let (counts, meshes) = run(&scene, 30, true, &counter, &[30]);
+    // At the sensor's resolution, where the requirement is judged: the
+    // adaptive mesher describes the post's faces with few triangles, while
+    // the slivers left at its edges in front of open space (no seeds: see
+    // `absence`) are pixel-sized, so a share of triangles depends on the
+    // resolution (at half resolution 374 of 4,423 are left, 8.5 %).
+    let (counts, meshes) = run(FULL, &scene, 30, true, &counter, &[30]);
     let peak = counts[..15].iter().map(|c| c[0]).max().unwrap();
     let left = counts[29][0];
     assert!(peak > 2000, "the post was never mapped ({peak} triangles)");
@@ -127,7 +138,7 @@ fn object_removed_in_front_of_open_space_leaves_the_map() {
         .mesh;
     let covered = |m: &Mesh| fraction_within(drum, m, 0.01, 0.005).unwrap();
     let with_removal = covered(&meshes[0]);
-    let without = covered(&run(&scene, 30, false, &counter, &[30]).1[0]);
+    let without = covered(&run(FULL, &scene, 30, false, &counter, &[30]).1[0]);
     assert!(
         with_removal >= 0.9 * without,
         "{with_removal:.3} of the drum's surface mapped, {without:.3} without removal"
@@ -149,12 +160,7 @@ fn a_present_object_that_returns_nothing_is_kept() {
            translation = [0.0, 0.35, -0.6]\nreturns = false\nappear_at = 11\n";
     let scene = scene(&text);
     let counter = Counter::new(&scene, &["crate"]);
-    let (counts, meshes) = run(&scene, 25, true, &counter, &[10, 25]);
-    let before = counts[9][0];
-    assert!(
-        before > 2000,
-        "the crate was never mapped ({before} triangles)"
-    );
+    let (counts, meshes) = run(HALF, &scene, 25, true, &counter, &[10, 25]);
     // Kept as present objects are: ≥ 90 % of the surface it had mapped
     // (surface, not triangles: settled surface is simplified meanwhile).
     let crate_mesh = &scene
@@ -165,6 +171,10 @@ fn a_present_object_that_returns_nothing_is_kept() {
         .mesh;
     let covered = |m: &Mesh| fraction_within(crate_mesh, m, 0.01, 0.005).unwrap();
     let (then, now) = (covered(&meshes[0]), covered(&meshes[1]));
+    assert!(
+        then > 0.5,
+        "the crate was hardly mapped before it turned black ({then:.3} of its surface)"
+    );
     assert!(
         now >= 0.9 * then,
         "{now:.3} of the black crate's surface mapped at the end, {then:.3} before it turned black; \
@@ -180,7 +190,7 @@ fn holes_left_by_removal_change_nothing_but_the_work() {
     // and shrink exactly alike.
     let scene = scene(OPEN_SPACE);
     let poses = PathSpec::Helix.build(&scene, 30).unwrap();
-    let (mut a_sensor, mut b_sensor) = (sensor(), sensor());
+    let (mut a_sensor, mut b_sensor) = (sensor(HALF), sensor(HALF));
     let config = MabdiConfig::thesis(a_sensor.intrinsics, a_sensor.near, a_sensor.far);
     let mut closed = MabdiMapper::new(config).unwrap();
     let mut holed = MabdiMapper::new(config).unwrap();

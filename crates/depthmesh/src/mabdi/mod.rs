@@ -15,6 +15,7 @@ pub mod absence;
 pub mod classify;
 pub mod mesher;
 pub mod removal;
+pub mod rtin;
 pub mod settle;
 pub mod smooth;
 
@@ -43,7 +44,8 @@ pub struct MabdiConfig {
     pub boundary: Threshold,
     /// Remove triangles the sensor sees through; `None` keeps everything (the thesis).
     pub removal: Option<RemovalConfig>,
-    /// Simplify surface that has settled ([`settle`]); `None` keeps the
+    /// Mesh novel surface adaptively ([`rtin`]) and simplify surface that
+    /// has settled ([`settle`]), both to `error · τ(z)`; `None` keeps the
     /// depth-image grid triangles as they were added (the thesis).
     pub settling: Option<Settling>,
     /// Mesh novel surface from D smoothed on each surface ([`smooth`]);
@@ -590,6 +592,10 @@ impl Mapper for MabdiMapper {
             &k,
             pose,
             self.iteration,
+            self.config.settling.map(|s| {
+                let (a, b) = self.config.novelty.quadratic();
+                (s.error * a, s.error * b)
+            }),
         );
         self.patches.added(added, pose, self.iteration);
         let mesh_ms = lap();
@@ -651,7 +657,10 @@ impl Mapper for MabdiMapper {
 }
 
 /// Meshes the novel pixels of a frame's `depth` onto the end of `mesh`, in
-/// the colour of `iteration`; returns how many triangles were added.
+/// the colour of `iteration`, adaptively within `bound` (metres `a + b·z²`
+/// at depth z) if given, else in half pixels as the thesis does; returns how
+/// many triangles were added.
+#[allow(clippy::too_many_arguments)]
 fn append_novel(
     mesher: &mut DepthMesher,
     mesh: &mut Mesh,
@@ -660,16 +669,18 @@ fn append_novel(
     intrinsics: &Intrinsics,
     pose: &Pose,
     iteration: u32,
+    bound: Option<(f32, f32)>,
 ) -> usize {
-    let added = mesher.mesh(
-        depth,
-        classes,
-        |c| c == PixelClass::Novel,
-        intrinsics,
-        pose,
-        &mut mesh.positions,
-        &mut mesh.triangles,
-    );
+    let novel = |c| c == PixelClass::Novel;
+    let (positions, triangles) = (&mut mesh.positions, &mut mesh.triangles);
+    let added = match bound {
+        Some(bound) => mesher.mesh_adaptive(
+            depth, classes, novel, bound, intrinsics, pose, positions, triangles,
+        ),
+        None => mesher.mesh(
+            depth, classes, novel, intrinsics, pose, positions, triangles,
+        ),
+    };
     mesh.colors
         .resize(mesh.positions.len(), iteration_color(iteration));
     added
@@ -750,6 +761,7 @@ impl Mapper for NaiveMapper {
             &k,
             pose,
             self.iteration,
+            None,
         );
         Ok(IntegrateReport {
             new_elements: added,

@@ -53,7 +53,7 @@ const MAX_SHIFT: f32 = 0.5;
 pub struct Smoother {
     /// The filter for the settings it was made for.
     filter: Option<(Smoothing, Threshold, Bilateral)>,
-    /// Per row, its runs of novel pixels (gaps of a few pixels bridged).
+    /// Per row, its runs of pixels to smooth (gaps of a few pixels bridged).
     runs: Vec<Vec<Range<usize>>>,
     /// The image in the filter's domain (inverse depth for normalised
     /// thresholds), where the spans' windows reach.
@@ -64,9 +64,10 @@ pub struct Smoother {
 
 impl Smoother {
     /// `depth` smoothed as [`Smoothing`] says, with the range weight set by
-    /// the novelty threshold `novelty`, at the pixels `classes` calls novel
-    /// (the only ones meshed: the rest of the image is left as it was, and
-    /// must not be read). Pixels without depth stay without.
+    /// the novelty threshold `novelty`, at the novel pixels (as `classes`
+    /// says) that a triangle of novel pixels can use: the rest of the
+    /// image, novel pixels scattered alone included, is left as it was and
+    /// must not be read. Pixels without depth stay without.
     pub fn apply(
         &mut self,
         depth: &DepthImage,
@@ -93,10 +94,12 @@ impl Smoother {
         let w = depth.width as usize;
         let h = classes.len() / w.max(1);
         self.runs.resize_with(h, Vec::new);
-        self.runs
-            .par_iter_mut()
-            .zip(classes.par_chunks(w))
-            .for_each(|(runs, row)| novel_runs(row, runs));
+        self.runs.par_iter_mut().enumerate().for_each(|(y, runs)| {
+            let row = |y: usize| &classes[y * w..(y + 1) * w];
+            let above = y.checked_sub(1).map(row);
+            let below = (y + 1 < h).then(|| row(y + 1));
+            meshed_runs([above, Some(row(y)), below], runs)
+        });
         let runs = &self.runs;
         let spans = |y: usize| runs[y].iter().cloned();
         match novelty {
@@ -148,9 +151,21 @@ impl Smoother {
 /// runs fastest along long rows.
 const BRIDGED_GAP: usize = 8;
 
-/// The runs of novel pixels of one row of classes into `runs`.
-fn novel_runs(row: &[PixelClass], runs: &mut Vec<Range<usize>>) {
+/// The runs of the pixels of one row (`rows[1]`, between the rows above
+/// and below it, if any) that a triangle of novel pixels may use, into
+/// `runs`: novel pixels in a 2×2 block with at least three novel pixels,
+/// which every triangle of the mesher (a half pixel, or a larger one
+/// covering only novel pixels) lies in. Novel pixels scattered by noise
+/// are meshed by no triangle, so they are not smoothed.
+fn meshed_runs(rows: [Option<&[PixelClass]>; 3], runs: &mut Vec<Range<usize>>) {
     runs.clear();
+    let Some(row) = rows[1] else { return };
+    let novel = |r: &[PixelClass], x: usize| usize::from(r[x] == PixelClass::Novel);
+    // Whether the block of `upper` and `lower` from column `x` has three.
+    let block = |upper: &[PixelClass], lower: &[PixelClass], x: usize| {
+        x + 1 < row.len()
+            && novel(upper, x) + novel(upper, x + 1) + novel(lower, x) + novel(lower, x + 1) >= 3
+    };
     // Eight classes at a time: most of a frame is not novel.
     for (i, eight) in row.chunks(8).enumerate() {
         if !eight.contains(&PixelClass::Novel) {
@@ -159,6 +174,15 @@ fn novel_runs(row: &[PixelClass], runs: &mut Vec<Range<usize>>) {
         for (j, c) in eight.iter().enumerate() {
             let x = 8 * i + j;
             if *c != PixelClass::Novel {
+                continue;
+            }
+            let meshed = [(rows[0], Some(row)), (Some(row), rows[2])]
+                .into_iter()
+                .filter_map(|(upper, lower)| Some((upper?, lower?)))
+                .any(|(upper, lower)| {
+                    (x > 0 && block(upper, lower, x - 1)) || block(upper, lower, x)
+                });
+            if !meshed {
                 continue;
             }
             match runs.last_mut() {
