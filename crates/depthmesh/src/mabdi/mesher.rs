@@ -389,7 +389,7 @@ mod tests {
         let (mut positions, mut triangles) = (Vec::new(), Vec::new());
         let novel = |c| c == PixelClass::Novel;
         let mut mesher = DepthMesher::new();
-        let mut mesh = |mesher: &mut DepthMesher, p: &mut Vec<Vec3>, t: &mut Vec<[u32; 3]>| {
+        let mesh = |mesher: &mut DepthMesher, p: &mut Vec<Vec3>, t: &mut Vec<[u32; 3]>| {
             mesher.mesh_adaptive(
                 &depth,
                 &classes,
