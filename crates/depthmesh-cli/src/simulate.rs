@@ -80,7 +80,8 @@ pub struct SimulateArgs {
     /// Keep triangles the sensor sees through (the thesis's behaviour) instead of removing them.
     #[arg(long)]
     pub keep_removed: bool,
-    /// Keep M as the depth-image mesher made it: no simplification of
+    /// Mesh novel pixels in half pixels as the thesis does and keep M as
+    /// that mesher made it: no adaptive meshing, no simplification of
     /// settled surface (mabdi).
     #[arg(long)]
     pub no_settle: bool,
