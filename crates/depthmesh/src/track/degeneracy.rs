@@ -15,6 +15,18 @@
 //! well and others barely; solving them all lets noise push the pose along
 //! the weak ones, refusing the frame throws away a view that pins down
 //! most of the pose.
+//!
+//! Weak is relative (a small eigenvalue of the per-inlier system), but the
+//! prediction is not exact either: a constant velocity that is slightly
+//! off along a weak direction is never corrected if that direction always
+//! keeps it, and the error grows frame after frame (a floor with one small
+//! box, orbited: 17 cm in 25 frames). So along a weak direction the data
+//! and the prediction are weighed by their variances, as a Kalman update
+//! would: the data's is the noise over the information the inliers carry
+//! along it (`noise² / (λ·n)`), the prediction's the motion model's
+//! per-frame error (`motion_sigma²`). A plane's in-plane motion (λ ≈ 0)
+//! still keeps the prediction; a direction that many points pin down
+//! weakly each follows the data in part.
 
 use super::icp::Equations;
 use crate::linalg::symmetric_eigen;
@@ -32,7 +44,16 @@ pub struct Directions {
     vectors: [[f64; 6]; 6],
     b: [f64; 6],
     scale: [f64; 6],
+    /// Noise of one inlier's residual (metres).
+    noise: f64,
+    /// Inliers of the system.
+    inliers: f64,
 }
+
+/// The noise of a residual is taken as at least this (metres): a close,
+/// smoothed view can fit its model to well under a millimetre, while the
+/// model's own error is not in that figure.
+const NOISE_FLOOR: f64 = 1e-3;
 
 /// Directions left to the prediction.
 #[derive(Clone, Copy, Debug, Default, PartialEq)]
@@ -54,7 +75,24 @@ impl Directions {
             vectors,
             b,
             scale,
+            noise: eq.rms().max(NOISE_FLOOR),
+            inliers: eq.inliers as f64,
         })
+    }
+
+    /// The share of the data's estimate kept along a direction of
+    /// eigenvalue `value`, against a prediction of standard deviation
+    /// `motion_sigma` (both in metres of the scaled system): 1 where the
+    /// direction is not weak (`value` at least `min_eigenvalue`).
+    fn data_weight(&self, value: f64, min_eigenvalue: f64, motion_sigma: f64) -> f64 {
+        if value >= min_eigenvalue {
+            return 1.0;
+        }
+        let information = value.max(0.0) * self.inliers;
+        let data_variance = self.noise * self.noise;
+        let prior = motion_sigma * motion_sigma;
+        // w = σp² / (σp² + σd²) with σd² = noise² / information.
+        prior * information / (prior * information + data_variance)
     }
 
     /// The update (rotation as a scaled axis, translation) solving the
@@ -77,11 +115,13 @@ impl Directions {
         ([x[0], x[1], x[2]], [x[3], x[4], x[5]])
     }
 
-    /// The directions with an eigenvalue below `min_eigenvalue`.
-    pub fn weak(&self, min_eigenvalue: f64) -> Weak {
+    /// The directions with an eigenvalue below `min_eigenvalue` along
+    /// which the data weigh less than a prediction of standard deviation
+    /// `motion_sigma`.
+    pub fn weak(&self, min_eigenvalue: f64, motion_sigma: f64) -> Weak {
         let mut weak = Weak::default();
         for (&value, v) in self.values.iter().zip(&self.vectors) {
-            if value >= min_eigenvalue {
+            if self.data_weight(value, min_eigenvalue, motion_sigma) >= 0.5 {
                 continue;
             }
             weak.count += 1;
@@ -93,13 +133,15 @@ impl Directions {
         weak
     }
 
-    /// `motion` (rotation as a scaled axis, translation) without its
-    /// components along the directions with an eigenvalue below
-    /// `min_eigenvalue`.
+    /// `motion` (rotation as a scaled axis, translation, away from the
+    /// prediction) with its components along the directions with an
+    /// eigenvalue below `min_eigenvalue` weighed against the prediction of
+    /// standard deviation `motion_sigma` (0: dropped).
     pub fn without_weak(
         &self,
         motion: ([f64; 3], [f64; 3]),
         min_eigenvalue: f64,
+        motion_sigma: f64,
     ) -> ([f64; 3], [f64; 3]) {
         let x = [
             motion.0[0],
@@ -111,10 +153,11 @@ impl Directions {
         ];
         let mut y: [f64; 6] = std::array::from_fn(|i| x[i] / self.scale[i]);
         for (&value, v) in self.values.iter().zip(&self.vectors) {
-            if value >= min_eigenvalue {
+            let dropped = 1.0 - self.data_weight(value, min_eigenvalue, motion_sigma);
+            if dropped == 0.0 {
                 continue;
             }
-            let along = dot(v, &y);
+            let along = dropped * dot(v, &y);
             for (y, v) in y.iter_mut().zip(v) {
                 *y -= along * v;
             }

@@ -73,6 +73,13 @@ pub struct TrackerConfig {
     /// motion model's prediction instead of following the noise
     /// ([`super::degeneracy`]). A weak view is tracked, not lost.
     pub weak_conditioning: f64,
+    /// How far the constant-velocity prediction may be off in a frame
+    /// (metres; rotations in metres at the points' range): along a weak
+    /// direction the data and the prediction are weighed by it and by the
+    /// data's own spread ([`super::degeneracy`]); 0 keeps the prediction.
+    /// A hand-held or robot-borne camera at 30 Hz changes its velocity by
+    /// a few millimetres a frame.
+    pub motion_sigma: f64,
     /// A frame aligned against the model view with a conditioning below
     /// this is aligned again against the finer view (see
     /// [`TrackerConfig::model_halvings`]), where thin structures (a table
@@ -115,6 +122,7 @@ impl Default for TrackerConfig {
             min_inlier_fraction: 0.25,
             max_rms: 0.02,
             weak_conditioning: 3e-5,
+            motion_sigma: 0.002,
             refine_conditioning: 2e-3,
             max_jump: 0.3,
             convergence: 1e-5,
@@ -165,6 +173,7 @@ impl TrackerConfig {
                 1.0 / 3.0,
             ),
             ("convergence", self.convergence, 0.0, 1.0),
+            ("motion_sigma", self.motion_sigma, 0.0, 1.0),
         ];
         for (name, v, lo, hi) in ranges {
             if !(v >= lo && v < hi || name == "max_normal_angle" && v == hi) {
@@ -749,7 +758,9 @@ impl Tracker {
         // prediction, if there is one: without a measured motion (the
         // first frame) "no motion" is a guess, not a prediction.
         let directions = Directions::of(&eq);
-        let weak = directions.map_or(Weak::default(), |d| d.weak(self.config.weak_conditioning));
+        let (weak_conditioning, motion_sigma) =
+            (self.config.weak_conditioning, self.config.motion_sigma);
+        let weak = directions.map_or(Weak::default(), |d| d.weak(weak_conditioning, motion_sigma));
         let predicts = self.velocity_known || recovering;
         if let (Some(d), true) = (directions, weak.count > 0 && predicts) {
             let moved = relative.compose(&predicted.inverse());
@@ -760,7 +771,8 @@ impl Tracker {
                     [omega.x, omega.y, omega.z].map(f64::from),
                     [t.x, t.y, t.z].map(f64::from),
                 ),
-                self.config.weak_conditioning,
+                weak_conditioning,
+                motion_sigma,
             );
             relative = apply_motion(&predicted, omega, t);
         }
@@ -1242,9 +1254,10 @@ translation = [0.2, 0.225, -0.1]
         assert!(worst < 0.01, "worst {:.1} mm", worst * 1e3);
     }
 
+    // The box constrains the orbit weakly (conditioning 1e-5 to 2e-5): with
+    // those directions left to the motion model alone it drifted 17 cm in
+    // 25 frames; weighed against it, within a centimetre.
     #[test]
-    #[ignore = "known failure: the box constrains the orbit too weakly (conditioning 2e-5), \
-                the motion model drifts 18 cm in 25 frames"]
     fn a_plane_with_one_small_object_is_tracked_with_kinect_noise() {
         let worst = track_helix(PLANE_AND_BOX, 25);
         assert!(worst < 0.01, "worst {:.1} mm", worst * 1e3);
