@@ -119,6 +119,21 @@ impl AbsenceMap {
         if through < params.seeds {
             return None;
         }
+        // Noise makes pixels seen through here and there in most frames;
+        // solid seeds are rarer, and without enough of them no region can
+        // be vanishing (counted apart, as regions are only labelled from them).
+        let flags = &self.flags;
+        let solid = (1..h - 1)
+            .into_par_iter()
+            .map(|r| {
+                (r * w + 1..(r + 1) * w - 1)
+                    .filter(|&p| solid(flags, w, p))
+                    .count()
+            })
+            .sum::<usize>();
+        if solid < params.seeds as usize {
+            return None;
+        }
         self.label_regions(&expected.data, w, h, continuity);
         let (labels, seeds, flags) = (&self.labels, &self.seeds, &self.flags);
         self.vanished.resize(w * h, false);
@@ -142,8 +157,8 @@ impl AbsenceMap {
         })
     }
 
-    /// Labels the regions that hold a seen-through pixel (flood fill over
-    /// members where E is continuous) and counts each one's solid seeds.
+    /// Labels the regions that hold a solid seed (flood fill over members
+    /// where E is continuous) and counts each one's solid seeds.
     fn label_regions(&mut self, e: &[f32], w: usize, h: usize, continuity: Threshold) {
         self.labels.clear();
         self.labels.resize(w * h, 0);
@@ -152,16 +167,11 @@ impl AbsenceMap {
         let flags = &self.flags;
         let solid = |p: usize| {
             let (r, c) = (p / w, p % w);
-            r > 0
-                && c > 0
-                && r + 1 < h
-                && c + 1 < w
-                && [p, p - 1, p + 1, p - w, p + w]
-                    .iter()
-                    .all(|&q| flags[q] & THROUGH != 0)
+            r > 0 && c > 0 && r + 1 < h && c + 1 < w && solid(flags, w, p)
         };
         for start in 0..w * h {
-            if flags[start] & (THROUGH | MEMBER) != (THROUGH | MEMBER) || self.labels[start] != 0 {
+            // A solid seed is a member: measured beyond E.
+            if self.labels[start] != 0 || !solid(start) {
                 continue;
             }
             let label = self.seeds.len() as u32;
@@ -189,6 +199,16 @@ impl AbsenceMap {
             self.seeds.push(count);
         }
     }
+}
+
+/// Whether pixel `p` (not on the image border) and its four neighbours
+/// are all seen through: a solid seed.
+#[inline]
+fn solid(flags: &[u8], w: usize, p: usize) -> bool {
+    flags[p] & THROUGH != 0
+        && [p - 1, p + 1, p - w, p + w]
+            .iter()
+            .all(|&q| flags[q] & THROUGH != 0)
 }
 
 impl Absence<'_> {
