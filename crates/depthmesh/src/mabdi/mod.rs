@@ -135,6 +135,12 @@ impl MabdiConfig {
                         "must be at least 1",
                     ));
                 }
+                if m.fringe > 8 {
+                    return Err(Error::parameter(
+                        "missing-return fringe",
+                        format!("at most 8 pixels, got {}", m.fringe),
+                    ));
+                }
             }
         }
         Ok(())
@@ -149,7 +155,8 @@ impl MabdiConfig {
     /// between 1.1·near and 0.875·far (0.88–3.5 m for 0.8–4 m: 15σ of the
     /// thesis's noise inside the far limit) on regions with 16 solidly
     /// seen-through pixels (a 4×4 patch; 2.6 mm² at 1 m, so any object the
-    /// sensor can map shows that much somewhere once it is gone).
+    /// sensor can map shows that much somewhere once it is gone), and on
+    /// pixels within 2 of those regions ([`absence`](mod@absence)).
     /// Surface unchanged for 3 iterations is simplified to 0.2·τ(z), σ of
     /// the thesis's noise. Novel surface is meshed from D smoothed over
     /// 5×5 pixels ([`smooth`]): with 3×3 the noisy bunnies' M was 29 %
@@ -171,6 +178,7 @@ impl MabdiConfig {
                 missing: Some(MissingReturns {
                     range: [1.1 * near, 0.875 * far],
                     seeds: 16,
+                    fringe: 2,
                 }),
             }),
             settling: Some(Settling {
