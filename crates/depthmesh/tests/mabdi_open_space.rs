@@ -113,9 +113,8 @@ fn object_removed_in_front_of_open_space_leaves_the_map() {
     let counter = Counter::new(&scene, &["post", "drum"]);
     // At the sensor's resolution, where the requirement is judged: the
     // adaptive mesher describes the post's faces with few triangles, while
-    // the slivers left at its edges in front of open space (no seeds: see
-    // `absence`) are pixel-sized, so a share of triangles depends on the
-    // resolution (at half resolution 374 of 4,423 are left, 8.5 %).
+    // what is left at its edges stays pixel-sized, so a share of triangles
+    // depends on the resolution (at half resolution 4.7 % are left).
     let (counts, meshes) = run(FULL, &scene, 30, true, &counter, &[30]);
     let peak = counts[..15].iter().map(|c| c[0]).max().unwrap();
     let left = counts[29][0];
