@@ -109,12 +109,7 @@ impl MabdiConfig {
             }
         }
         if let Some(s) = self.smoothing {
-            if !(1..=8).contains(&s.radius) {
-                return Err(Error::parameter(
-                    "smoothing radius",
-                    format!("must be 1..=8 pixels, got {}", s.radius),
-                ));
-            }
+            s.filter(self.novelty).validate()?;
         }
         if let Some(r) = self.removal {
             r.threshold.validate("removal threshold")?;
@@ -791,5 +786,34 @@ impl Mapper for NaiveMapper {
 
     fn stats(&self) -> MapStats {
         mesh_stats(&self.mesh)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn settings_that_cannot_work_are_rejected_by_name() {
+        let ok = MabdiConfig::thesis(Intrinsics::from_vertical_fov(64, 48, 60.0), 0.8, 4.0);
+        assert!(ok.validate().is_ok());
+        let bad = |change: fn(&mut MabdiConfig)| {
+            let mut c = ok;
+            change(&mut c);
+            c.validate().unwrap_err().to_string()
+        };
+        assert!(bad(|c| c.smoothing = Some(Smoothing { radius: 0 })).contains("radius"));
+        assert!(bad(|c| c.smoothing = Some(Smoothing { radius: 40 })).contains("radius"));
+        let e = bad(|c| {
+            if let Some(r) = &mut c.removal {
+                r.missing = r.missing.map(|m| MissingReturns { fringe: 9, ..m });
+            }
+        });
+        assert!(e.contains("fringe"), "{e}");
+        assert!(bad(|c| c.settling = Some(Settling {
+            after: 3,
+            error: 1.5
+        }))
+        .contains("settling error"));
     }
 }

@@ -28,6 +28,20 @@ pub struct Smoothing {
     pub radius: u32,
 }
 
+impl Smoothing {
+    /// The filter's parameters for the novelty threshold `novelty` (which
+    /// [`Bilateral::new`] checks).
+    pub fn filter(&self, novelty: Threshold) -> BilateralParams {
+        BilateralParams {
+            radius: self.radius,
+            sigma_space: self.radius as f32,
+            sigma_depth: SIGMA_OF_THRESHOLD * domain_threshold(novelty),
+            cutoff: CUTOFF,
+            symmetric: Some(MAX_SHIFT * domain_threshold(novelty)),
+        }
+    }
+}
+
 /// Neighbours are weighted with a depth σ of half the novelty threshold and
 /// cut off at 2σ, τ(z) itself. σ must be well above the noise to average
 /// it (at τ/3, 1.7σ of the thesis's noise, a pixel's own noise kept most
@@ -78,16 +92,13 @@ impl Smoother {
         let filter = match &self.filter {
             Some((s, t, f)) if *s == smoothing && *t == novelty => f,
             _ => {
-                let params = BilateralParams {
-                    radius: smoothing.radius,
-                    sigma_space: smoothing.radius as f32,
-                    sigma_depth: SIGMA_OF_THRESHOLD * domain_threshold(novelty),
-                    cutoff: CUTOFF,
-                    symmetric: Some(MAX_SHIFT * domain_threshold(novelty)),
-                };
                 &self
                     .filter
-                    .insert((smoothing, novelty, Bilateral::new(params)?))
+                    .insert((
+                        smoothing,
+                        novelty,
+                        Bilateral::new(smoothing.filter(novelty))?,
+                    ))
                     .2
             }
         };
