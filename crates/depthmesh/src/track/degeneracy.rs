@@ -55,7 +55,7 @@ pub struct Directions {
 /// model's own error is not in that figure.
 const NOISE_FLOOR: f64 = 1e-3;
 
-/// Directions left to the prediction.
+/// Directions where the prediction weighs more than the data.
 #[derive(Clone, Copy, Debug, Default, PartialEq)]
 pub struct Weak {
     /// How many eigen-directions (0 to 6).

@@ -269,7 +269,8 @@ pub struct Tracked {
     pub conditioning: f64,
     /// ICP iterations run, all levels and attempts.
     pub iterations: usize,
-    /// Directions the view left weak, taken from the motion model (0–6).
+    /// Directions the view left weak, where the motion model weighed more
+    /// than the data (0–6).
     pub weak_directions: u8,
     /// The axes those directions move along most (bits of
     /// [`super::degeneracy::AXES`]; [`super::degeneracy::axes_label`]
