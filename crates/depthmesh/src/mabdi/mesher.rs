@@ -118,6 +118,11 @@ impl DepthMesher {
             .par_chunks(w)
             .map(|row| row.iter().any(|&c| keep(c)))
             .collect_into_vec(&mut self.row_kept);
+        let pixel = Unprojection {
+            depth,
+            intrinsics,
+            pose,
+        };
         let before = triangles.len();
         // Tile by tile rather than row by row: each run of triangles (and
         // their vertices) then covers a compact patch of surface, which lets
@@ -135,17 +140,7 @@ impl DepthMesher {
                                 continue;
                             }
                             let tri =
-                                t.map(|p| {
-                                    let v = &mut self.vertex_of_pixel[p];
-                                    if *v == NO_VERTEX {
-                                        *v = positions.len() as u32;
-                                        let (u, row) = ((p % w) as f32, (p / w) as f32);
-                                        positions.push(pose.transform_point(
-                                            intrinsics.back_project(u, row, depth.data[p]),
-                                        ));
-                                    }
-                                    *v
-                                });
+                                t.map(|p| pixel.vertex(&mut self.vertex_of_pixel, p, positions).0);
                             triangles.push(tri);
                         }
                     }
@@ -180,6 +175,8 @@ impl DepthMesher {
         }
         let columns = (w - 1).div_ceil(TILE);
         let tiles = columns * (h - 1).div_ceil(TILE);
+        // The top-left pixel of tile `i`, row-major.
+        let origin = |i: usize| [i % columns * TILE, i / columns * TILE];
         self.tiles.resize_with(tiles, Vec::new);
         let threads = rayon::current_num_threads().max(1);
         self.scratch.resize_with(threads, Default::default);
@@ -207,7 +204,7 @@ impl DepthMesher {
             .for_each(|(i, out)| {
                 let slot = rayon::current_thread_index().unwrap_or(0) % scratch.len();
                 let mut tile = scratch[slot].lock().unwrap_or_else(PoisonError::into_inner);
-                let (x0, y0) = (i % columns * TILE, i / columns * TILE);
+                let [x0, y0] = origin(i);
                 tile.mesh(x0, y0, w, h, inverse_row, bound, out);
             });
         // Vertices first, tile by tile (each tile's run of triangles and
@@ -217,23 +214,23 @@ impl DepthMesher {
             self.vertex_of_pixel.clear();
             self.vertex_of_pixel.resize(w * h, NO_VERTEX);
         }
+        let pixel = Unprojection {
+            depth,
+            intrinsics,
+            pose,
+        };
         for (i, tile) in self.tiles[..tiles].iter().enumerate() {
-            let (x0, y0) = (i % columns * TILE, i / columns * TILE);
+            let [x0, y0] = origin(i);
             for p in tile.iter().flatten() {
-                let (x, y) = (x0 + p[0] as usize, y0 + p[1] as usize);
-                let v = &mut self.vertex_of_pixel[y * w + x];
-                if *v == NO_VERTEX {
-                    *v = positions.len() as u32;
-                    self.vertex_pixels.push((y * w + x) as u32);
-                    let z = depth.data[y * w + x];
-                    positions
-                        .push(pose.transform_point(intrinsics.back_project(x as f32, y as f32, z)));
+                let at = (y0 + p[1] as usize) * w + x0 + p[0] as usize;
+                if pixel.vertex(&mut self.vertex_of_pixel, at, positions).1 {
+                    self.vertex_pixels.push(at as u32);
                 }
             }
         }
         let before = triangles.len();
         for (i, tile) in self.tiles[..tiles].iter().enumerate() {
-            let (x0, y0) = (i % columns * TILE, i / columns * TILE);
+            let [x0, y0] = origin(i);
             for t in tile {
                 let t = t.map(|p| [x0 + p[0] as usize, y0 + p[1] as usize]);
                 if !has_long_border_edge(&t, [x0, y0]) {
@@ -255,6 +252,35 @@ impl DepthMesher {
         }
         self.table_clear = true;
         triangles.len() - before
+    }
+}
+
+/// Pixels of a depth image back-projected into world space.
+struct Unprojection<'a> {
+    depth: &'a DepthImage,
+    intrinsics: &'a Intrinsics,
+    pose: &'a Pose,
+}
+
+impl Unprojection<'_> {
+    /// The vertex of pixel `p` in `table` (per pixel, [`NO_VERTEX`] until
+    /// made), made the first time it is asked: back-projected at its depth
+    /// onto the end of `positions`. Says whether it was made now.
+    #[inline]
+    fn vertex(&self, table: &mut [u32], p: usize, positions: &mut Vec<Vec3>) -> (u32, bool) {
+        let v = &mut table[p];
+        if *v != NO_VERTEX {
+            return (*v, false);
+        }
+        *v = positions.len() as u32;
+        let w = self.depth.width as usize;
+        let (u, row) = ((p % w) as f32, (p / w) as f32);
+        positions.push(self.pose.transform_point(self.intrinsics.back_project(
+            u,
+            row,
+            self.depth.data[p],
+        )));
+        (*v, true)
     }
 }
 
