@@ -66,6 +66,8 @@ pub struct AbsenceMap {
     /// Seeds per region, indexed by label.
     seeds: Vec<u32>,
     stack: Vec<u32>,
+    /// The solid seeds, in image order.
+    solid: Vec<usize>,
     /// Per pixel: a vanishing region's pixel with no return around it.
     vanished: Vec<bool>,
 }
@@ -133,15 +135,13 @@ impl AbsenceMap {
         // solid seeds are rarer, and without enough of them no region can
         // be vanishing (counted apart, as regions are only labelled from them).
         let flags = &self.flags;
-        let solid = (1..h - 1)
-            .into_par_iter()
-            .map(|r| {
-                (r * w + 1..(r + 1) * w - 1)
-                    .filter(|&p| solid(flags, w, p))
-                    .count()
-            })
-            .sum::<usize>();
-        if solid < params.seeds as usize {
+        self.solid.clear();
+        self.solid.par_extend(
+            (1..h - 1)
+                .into_par_iter()
+                .flat_map_iter(|r| (r * w + 1..(r + 1) * w - 1).filter(|&p| solid(flags, w, p))),
+        );
+        if self.solid.len() < params.seeds as usize {
             return None;
         }
         self.label_regions(&expected.data, w, h, continuity);
@@ -173,7 +173,8 @@ impl AbsenceMap {
     }
 
     /// Labels the regions that hold a solid seed (flood fill over members
-    /// where E is continuous) and counts each one's solid seeds.
+    /// where E is continuous, from the seeds found, in image order) and
+    /// counts each one's solid seeds.
     fn label_regions(&mut self, e: &[f32], w: usize, h: usize, continuity: Threshold) {
         self.labels.clear();
         self.labels.resize(w * h, 0);
@@ -184,9 +185,9 @@ impl AbsenceMap {
             let (r, c) = (p / w, p % w);
             r > 0 && c > 0 && r + 1 < h && c + 1 < w && solid(flags, w, p)
         };
-        for start in 0..w * h {
-            // A solid seed is a member: measured beyond E.
-            if self.labels[start] != 0 || !solid(start) {
+        // A solid seed is a member: measured beyond E.
+        for &start in &self.solid {
+            if self.labels[start] != 0 {
                 continue;
             }
             let label = self.seeds.len() as u32;
