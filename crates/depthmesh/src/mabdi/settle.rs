@@ -391,10 +391,7 @@ fn replace(
     range: std::ops::Range<usize>,
     parts: Vec<(Mesh, Vec<u8>)>,
 ) -> usize {
-    let (v0, v1) = mesh.triangles[range.clone()]
-        .iter()
-        .flatten()
-        .fold((u32::MAX, 0), |(lo, hi), &v| (lo.min(v), hi.max(v + 1)));
+    let (v0, v1) = vertex_span(&mesh.triangles[range.clone()]);
     let (mut positions, mut colors, mut triangles, mut new_votes) =
         (Vec::new(), Vec::new(), Vec::new(), Vec::new());
     for (part, part_votes) in parts {
@@ -419,6 +416,15 @@ fn replace(
     count
 }
 
+/// The lowest vertex `triangles` use and one past the highest (`(u32::MAX,
+/// 0)` for none): a patch's, or a group's, vertices are a run of M's.
+fn vertex_span(triangles: &[[u32; 3]]) -> (u32, u32) {
+    triangles
+        .iter()
+        .flatten()
+        .fold((u32::MAX, 0), |(lo, hi), &v| (lo.min(v), hi.max(v + 1)))
+}
+
 /// The vertices of a patch that more than one of its groups use.
 struct Seams {
     /// The patch's first vertex (a patch's vertices are a contiguous run).
@@ -431,10 +437,11 @@ impl Seams {
     /// The seams between `groups` (one patch's, as `(patch, triangles)`).
     fn of(mesh: &Mesh, groups: &[(usize, std::ops::Range<usize>)]) -> Seams {
         let triangles = |range: &std::ops::Range<usize>| mesh.triangles[range.clone()].iter();
-        let (first, end) = groups
-            .iter()
-            .flat_map(|(_, range)| triangles(range).flatten())
-            .fold((u32::MAX, 0), |(lo, hi), &v| (lo.min(v), hi.max(v + 1)));
+        // The groups are consecutive: their span is the patch's.
+        let (first, end) = match (groups.first(), groups.last()) {
+            (Some((_, a)), Some((_, b))) => vertex_span(&mesh.triangles[a.start..b.end]),
+            _ => (u32::MAX, 0),
+        };
         let len = end.saturating_sub(first) as usize;
         let (mut group_of, mut shared) = (vec![usize::MAX; len], vec![false; len]);
         for (g, (_, range)) in groups.iter().enumerate() {
@@ -479,11 +486,7 @@ impl Group<'_> {
         let mut local = Mesh::default();
         // The group's vertices are a run of M's (a patch's vertices are), so
         // their new indices are looked up by offset in that run.
-        let triangles = &mesh.triangles[self.range.clone()];
-        let (first, end) = triangles
-            .iter()
-            .flatten()
-            .fold((u32::MAX, 0), |(lo, hi), &v| (lo.min(v), hi.max(v + 1)));
+        let (first, end) = vertex_span(&mesh.triangles[self.range.clone()]);
         let mut index = vec![u32::MAX; end.saturating_sub(first) as usize];
         let mut locked = Vec::new();
         let mut voted = HashMap::new();

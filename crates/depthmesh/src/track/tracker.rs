@@ -69,8 +69,9 @@ pub struct TrackerConfig {
     /// Lost when the inliers' RMS point-to-plane error is larger (metres).
     pub max_rms: f64,
     /// Eigen-directions of the ICP system constrained less than this (see
-    /// [`super::icp::Equations::conditioning`]) are weak: they keep the
-    /// motion model's prediction instead of following the noise
+    /// [`super::icp::Equations::conditioning`]) are weak: along them the
+    /// data are weighed against the motion model's prediction (see
+    /// [`TrackerConfig::motion_sigma`]) instead of followed into the noise
     /// ([`super::degeneracy`]). A weak view is tracked, not lost.
     pub weak_conditioning: f64,
     /// How far the constant-velocity prediction may be off in a frame
