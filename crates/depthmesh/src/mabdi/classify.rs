@@ -86,7 +86,7 @@ pub fn classify(
     out: &mut Vec<PixelClass>,
 ) -> usize {
     let w = depth.width as usize;
-    out.clear();
+    // Every pixel is written below: no clearing.
     out.resize(depth.data.len(), PixelClass::Invalid);
     if w == 0 {
         return 0;
@@ -101,22 +101,26 @@ pub fn classify(
             let e_row = &expected.data[r * w..(r + 1) * w];
             // The first row and column compare with themselves: never a jump.
             let up = &depth.data[r.saturating_sub(1) * w..][..w];
-            let mut novel = 0;
-            // Without branches on the data, so that the row vectorises.
-            for c in 0..w {
-                let (d, e) = (d_row[c], e_row[c]);
+            let class = |d: f32, e: f32, left: f32, up: f32| {
                 let jump = b0 + b1 * d * d;
                 let differs = |n: f32| valid(n) & ((d - n).abs() > jump);
-                let edge = differs(d_row[c.saturating_sub(1)]) | differs(up[c]);
+                let edge = differs(left) | differs(up);
                 let new = (e <= 0.0) | ((d - e).abs() > n0 + n1 * d * d);
-                let class = match (valid(d), edge, new) {
+                match (valid(d), edge, new) {
                     (false, _, _) => PixelClass::Invalid,
                     (true, true, _) => PixelClass::Boundary,
                     (true, false, true) => PixelClass::Novel,
                     (true, false, false) => PixelClass::Known,
-                };
-                novel += usize::from(class == PixelClass::Novel);
-                row[c] = class;
+                }
+            };
+            row[0] = class(d_row[0], e_row[0], d_row[0], up[0]);
+            let mut novel = usize::from(row[0] == PixelClass::Novel);
+            // Zipped slices, without branches on the data, so that the row
+            // vectorises.
+            let pixels = d_row[1..].iter().zip(&e_row[1..]).zip(&d_row[..w - 1]);
+            for (out, (((&d, &e), &left), &up)) in row[1..].iter_mut().zip(pixels.zip(&up[1..])) {
+                *out = class(d, e, left, up);
+                novel += usize::from(*out == PixelClass::Novel);
             }
             novel
         })

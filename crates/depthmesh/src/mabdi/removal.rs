@@ -42,8 +42,9 @@ pub struct Carver {
     /// nine valid, [`NONE_OF_NINE`] = none valid), side by side so a lookup
     /// touches one cache line.
     depths: Vec<[f32; 2]>,
-    /// Scratch: per pixel, the minimum and maximum of it and its row neighbours.
-    row_extremes: Vec<[f32; 2]>,
+    /// Scratch: per band of rows, one row of the minimum and maximum of
+    /// each pixel and its neighbours above and below.
+    column_extremes: Vec<[f32; 2]>,
     /// The regions of missing returns (see [`absence`](mod@super::absence)).
     absence: AbsenceMap,
 }
@@ -51,6 +52,9 @@ pub struct Carver {
 /// The neighbourhood "minimum" of a pixel none of whose nine pixels has a
 /// measurement.
 pub(crate) const NONE_OF_NINE: f32 = -1.0;
+
+/// Rows of the image per parallel task of [`Carver::prepare`].
+const BAND_ROWS: usize = 16;
 
 /// The evidence one depth image gives about triangles, ready to be asked
 /// triangle by triangle (from the render of E, which projects them anyway).
@@ -75,45 +79,48 @@ impl Carver {
     ) -> (&'a mut [u8], Evidence<'a>) {
         self.votes.resize(triangles, 0);
         let (w, h) = (depth.width as usize, depth.height as usize);
-        self.depths.clear();
+        // Every pixel is written below: no clearing.
         self.depths.resize(w * h, [0.0; 2]);
         if w >= 3 && h >= 3 {
-            // The 3×3 minimum and maximum are separable: along rows, then
-            // down columns. An invalid depth counts as 0, so a minimum is
-            // positive exactly when all nine are valid, and a maximum is 0
-            // exactly when none is.
+            // The 3×3 minimum and maximum are separable: down the three
+            // rows of each column, then along the row. An invalid depth
+            // counts as 0, so a minimum is positive exactly when all nine
+            // are valid, and a maximum is 0 exactly when none is. One pass
+            // per band of rows, each with a row of column extremes of its
+            // own: the image is read once and written once.
             let valid = |d: f32| if d > 0.0 { d } else { 0.0 };
-            self.row_extremes.resize(w * h, [0.0; 2]);
-            self.row_extremes
-                .par_chunks_mut(w)
-                .zip(depth.data.par_chunks(w))
-                .for_each(|(out, row)| {
-                    for (o, d) in out[1..w - 1].iter_mut().zip(row.windows(3)) {
-                        let [a, b, c] = [d[0], d[1], d[2]].map(valid);
-                        *o = [a.min(b).min(c), a.max(b).max(c)];
-                    }
-                });
-            let rows = &self.row_extremes;
+            let data = &depth.data;
+            self.column_extremes
+                .resize(h.div_ceil(BAND_ROWS) * w, [0.0; 2]);
             self.depths
-                .par_chunks_mut(w)
-                .zip(depth.data.par_chunks(w))
+                .par_chunks_mut(BAND_ROWS * w)
+                .zip(self.column_extremes.par_chunks_mut(w))
                 .enumerate()
-                .for_each(|(r, (out, row))| {
-                    for (o, &d) in out.iter_mut().zip(row) {
-                        o[0] = d;
-                    }
-                    if r == 0 || r == h - 1 {
-                        return;
-                    }
-                    let above = &rows[(r - 1) * w..r * w];
-                    let here = &rows[r * w..(r + 1) * w];
-                    let below = &rows[(r + 1) * w..(r + 2) * w];
-                    for (c, o) in out.iter_mut().enumerate().take(w - 1).skip(1) {
-                        let min = above[c][0].min(here[c][0]).min(below[c][0]);
-                        let max = above[c][1].max(here[c][1]).max(below[c][1]);
-                        o[1] = if max > 0.0 { min } else { NONE_OF_NINE };
+                .for_each(|(band, (rows, extremes))| {
+                    for (i, out) in rows.chunks_mut(w).enumerate() {
+                        let r = band * BAND_ROWS + i;
+                        for (o, &d) in out.iter_mut().zip(&data[r * w..(r + 1) * w]) {
+                            *o = [d, 0.0];
+                        }
+                        if r == 0 || r == h - 1 {
+                            continue;
+                        }
+                        let [above, here, below] = [r - 1, r, r + 1].map(|r| &data[r * w..][..w]);
+                        for (e, ((&a, &b), &c)) in
+                            extremes.iter_mut().zip(above.iter().zip(here).zip(below))
+                        {
+                            let [a, b, c] = [a, b, c].map(valid);
+                            *e = [a.min(b).min(c), a.max(b).max(c)];
+                        }
+                        for (o, e) in out[1..w - 1].iter_mut().zip(extremes.windows(3)) {
+                            let min = e[0][0].min(e[1][0]).min(e[2][0]);
+                            let max = e[0][1].max(e[1][1]).max(e[2][1]);
+                            o[1] = if max > 0.0 { min } else { NONE_OF_NINE };
+                        }
                     }
                 });
+        } else {
+            self.depths.fill([0.0; 2]);
         }
         let evidence = Evidence {
             width: w,
