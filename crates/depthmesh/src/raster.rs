@@ -60,11 +60,24 @@ const GUARD_BAND: f32 = 2048.0;
 pub struct RenderTarget {
     /// Metric depth; 0 where nothing is seen.
     pub depth: DepthImage,
-    /// Index of the visible triangle, or [`NO_TRIANGLE`].
+    /// Index of the visible triangle, or [`NO_TRIANGLE`]; empty for a
+    /// [`RenderTarget::depth_only`] target.
     pub triangle: Vec<u32>,
+    /// Whether only depth is wanted.
+    depth_only: bool,
 }
 
 impl RenderTarget {
+    /// A target for depth alone: the render keeps 4 bytes a pixel for the
+    /// depth test instead of 8 with the triangle id, half the memory
+    /// traffic of its hottest loop (the same depths, bit for bit).
+    pub fn depth_only() -> Self {
+        Self {
+            depth_only: true,
+            ..Self::default()
+        }
+    }
+
     /// Sizes the buffers for an image; their contents are left to the
     /// render, which writes every pixel.
     fn resize(&mut self, width: u32, height: u32) {
@@ -72,13 +85,14 @@ impl RenderTarget {
         self.depth.width = width;
         self.depth.height = height;
         self.depth.data.resize(n, 0.0);
-        self.triangle.resize(n, NO_TRIANGLE);
+        self.triangle
+            .resize(if self.depth_only { 0 } else { n }, NO_TRIANGLE);
     }
 }
 
 /// Depth of a mesh seen from a pose (a fresh rasterizer: for occasional use).
 pub fn render_mesh_depth(mesh: &crate::Mesh, intrinsics: &Intrinsics, pose: &Pose) -> DepthImage {
-    let mut target = RenderTarget::default();
+    let mut target = RenderTarget::depth_only();
     Rasterizer::new().render(
         &mesh.positions,
         &mesh.triangles,
@@ -100,13 +114,10 @@ pub struct Rasterizer {
     /// [`OFF_GRID`] when it is behind the near plane or beyond the guard
     /// band; snapping once per vertex rather than per triangle corner.
     snapped: Vec<[i32; 2]>,
-    /// Per-pixel depth keys (see [`depth_key`]), one layer per worker thread:
-    /// small triangles are drawn into the layer of the thread that bins them,
-    /// and the layers are merged by `max` at the end (8 bytes a pixel a
-    /// thread: cheaper than re-reading every small triangle per band).
-    layers: Vec<Mutex<Vec<u64>>>,
-    /// Whether every layer holds only zero keys, as the merge leaves them.
-    layers_clear: bool,
+    /// The depth keys of renders with triangle ids.
+    wide: Layers<u64>,
+    /// The depth keys of depth-only renders.
+    narrow: Layers<u32>,
     /// Ids of the triangles left to the band pass, per (chunk, band),
     /// flattened chunk-major.
     bins: Vec<Vec<u32>>,
@@ -142,6 +153,94 @@ impl Kernel {
         }
     }
 }
+/// Per-pixel depth keys (see [`Key`]), one layer per worker thread: small
+/// triangles are drawn into the layer of the thread that bins them, and the
+/// layers are merged by `max` at the end (a key a pixel a thread: cheaper
+/// than re-reading every small triangle per band).
+#[derive(Debug, Default)]
+struct Layers<K> {
+    layers: Vec<Mutex<Vec<K>>>,
+    /// Whether every layer holds only zero keys, as the merge leaves them.
+    clear: bool,
+}
+
+impl<K: Key> Layers<K> {
+    /// Makes the first `count` layers hold `pixels` zero keys. The merge
+    /// leaves layers cleared, so this normally only checks sizes.
+    fn prepare(&mut self, count: usize, pixels: usize) {
+        if self.layers.len() < count {
+            self.layers.resize_with(count, Default::default);
+        }
+        let clear = std::mem::take(&mut self.clear);
+        for layer in &mut self.layers {
+            let layer = layer.get_mut().unwrap_or_else(PoisonError::into_inner);
+            if !clear || layer.len() != pixels {
+                layer.clear();
+                layer.resize(pixels, K::EMPTY);
+            }
+        }
+    }
+}
+
+/// A pixel's depth-test key: the inverse depth's bits above, for renders
+/// with ids, the complement of the triangle id. Positive floats order like
+/// their bits, so the largest key is the nearest triangle and, among
+/// equally near ones, the lowest id: the winner of drawing in id order with
+/// a strict test, but independent of the drawing order, which lets threads
+/// draw into layers merged by `max`. Non-positive (or NaN) inverse depths
+/// get the key of an empty pixel's depth.
+trait Key: Copy + Ord + Default + Send + Sync + std::fmt::Debug {
+    /// The key of no surface.
+    const EMPTY: Self;
+    /// The key of inverse depth `w` on triangle `id`.
+    fn new(w: f32, id: u32) -> Self;
+    /// The inverse depth and triangle id of a key ([`NO_TRIANGLE`] when the
+    /// key holds none).
+    fn decode(self) -> (f32, u32);
+    /// This kind's layers of a rasterizer's two.
+    fn layers<'a>(wide: &'a mut Layers<u64>, narrow: &'a mut Layers<u32>) -> &'a mut Layers<Self>;
+}
+
+/// The bits of a positive inverse depth, else 0.
+#[inline]
+fn depth_bits(w: f32) -> u32 {
+    if w > 0.0 {
+        w.to_bits()
+    } else {
+        0
+    }
+}
+
+impl Key for u64 {
+    const EMPTY: Self = 0;
+    #[inline]
+    fn new(w: f32, id: u32) -> Self {
+        (u64::from(depth_bits(w)) << 32) | u64::from(!id)
+    }
+    #[inline]
+    fn decode(self) -> (f32, u32) {
+        (f32::from_bits((self >> 32) as u32), !(self as u32))
+    }
+    fn layers<'a>(wide: &'a mut Layers<u64>, _: &'a mut Layers<u32>) -> &'a mut Layers<Self> {
+        wide
+    }
+}
+
+impl Key for u32 {
+    const EMPTY: Self = 0;
+    #[inline]
+    fn new(w: f32, _: u32) -> Self {
+        depth_bits(w)
+    }
+    #[inline]
+    fn decode(self) -> (f32, u32) {
+        (f32::from_bits(self), NO_TRIANGLE)
+    }
+    fn layers<'a>(_: &'a mut Layers<u64>, narrow: &'a mut Layers<u32>) -> &'a mut Layers<Self> {
+        narrow
+    }
+}
+
 /// View parameters shared by the passes of one render.
 #[derive(Clone, Copy)]
 struct View {
@@ -228,12 +327,12 @@ impl Vertices<'_> {
     /// The binning pass for a chunk of triangles (ids from `first`): draws
     /// the small ones into `keys` (the whole image), eight at a time with
     /// AVX2, and files the others under the bands they overlap.
-    fn draw_or_bin_chunk(
+    fn draw_or_bin_chunk<K: Key>(
         &self,
         tris: &[[u32; 3]],
         first: u32,
         bins: &mut [Vec<u32>],
-        keys: &mut [u64],
+        keys: &mut [K],
     ) {
         let mut done = 0;
         #[cfg(target_arch = "x86_64")]
@@ -261,7 +360,7 @@ impl Vertices<'_> {
     /// The binning pass for one triangle: drawn into `keys` (the whole
     /// image) if small, else filed under the bands it overlaps.
     #[inline]
-    fn draw_or_bin(&self, t: &[u32; 3], id: u32, bins: &mut [Vec<u32>], keys: &mut [u64]) {
+    fn draw_or_bin<K: Key>(&self, t: &[u32; 3], id: u32, bins: &mut [Vec<u32>], keys: &mut [K]) {
         if is_hole(t) {
             return;
         }
@@ -286,7 +385,7 @@ impl Vertices<'_> {
     }
 
     /// Draws a triangle into rows `row0..=row1` (`keys` holds those rows).
-    fn draw(&self, t: &[u32; 3], id: u32, row0: usize, row1: usize, keys: &mut [u64]) {
+    fn draw<K: Key>(&self, t: &[u32; 3], id: u32, row0: usize, row1: usize, keys: &mut [K]) {
         let screen = t.map(|v| self.screen[v as usize]);
         if let Some(q) = self.on_grid(t) {
             // The plane is fitted lazily: most small triangles cover no pixel centre.
@@ -355,6 +454,28 @@ impl Rasterizer {
     /// those corners are at hand. Returns whether any visit returned true.
     #[allow(clippy::too_many_arguments)]
     pub fn render_visiting<F>(
+        &mut self,
+        geometry: Geometry,
+        intrinsics: &Intrinsics,
+        pose: &Pose,
+        near: f32,
+        target: &mut RenderTarget,
+        state: Option<&mut [u8]>,
+        visit: F,
+    ) -> bool
+    where
+        F: Fn(&mut u8, &[[f32; 3]; 3]) -> bool + Sync,
+    {
+        if target.depth_only {
+            self.render_keys::<u32, F>(geometry, intrinsics, pose, near, target, state, visit)
+        } else {
+            self.render_keys::<u64, F>(geometry, intrinsics, pose, near, target, state, visit)
+        }
+    }
+
+    /// [`Rasterizer::render_visiting`] with depth keys `K`.
+    #[allow(clippy::too_many_arguments)]
+    fn render_keys<K: Key, F>(
         &mut self,
         geometry: Geometry,
         intrinsics: &Intrinsics,
@@ -439,7 +560,8 @@ impl Rasterizer {
 
         let visible_chunks = self.chunk_visible.iter().filter(|&&v| v).count();
         let layer_count = rayon::current_num_threads().min(visible_chunks).max(1);
-        self.prepare_layers(layer_count, view.width * view.height);
+        let key_layers = K::layers(&mut self.wide, &mut self.narrow);
+        key_layers.prepare(layer_count, view.width * view.height);
         let bands = view.height.div_ceil(BAND_ROWS);
         if self.bins.len() < chunks * bands {
             self.bins.resize_with(chunks * bands, Vec::new);
@@ -457,7 +579,7 @@ impl Rasterizer {
             snapped: &self.snapped,
         };
         let chunk_visible = &self.chunk_visible;
-        let layers = &self.layers[..layer_count];
+        let layers = &key_layers.layers[..layer_count];
         // Binning pass: small triangles (nearly all of a mesh made from depth
         // images) are drawn at once, while their corners are at hand; the
         // others are filed under the bands they overlap.
@@ -485,7 +607,7 @@ impl Rasterizer {
 
         // Band pass: the binned triangles, into the first layer, band by band.
         let bins = &self.bins[..chunks * bands];
-        let (base, others) = self.layers[..layer_count]
+        let (base, others) = key_layers.layers[..layer_count]
             .split_first_mut()
             .expect("at least one layer");
         let base = base.get_mut().unwrap_or_else(PoisonError::into_inner);
@@ -511,28 +633,39 @@ impl Rasterizer {
                 .for_each(|(into, from)| {
                     for (a, b) in into.iter_mut().zip(from) {
                         *a = (*a).max(*b);
-                        *b = 0;
+                        *b = K::EMPTY;
                     }
                 });
         }
-        target
+        let decode = |k: &mut K| {
+            let (w, id) = std::mem::replace(k, K::EMPTY).decode();
+            if w > 0.0 {
+                (1.0 / w, id)
+            } else {
+                (0.0, NO_TRIANGLE)
+            }
+        };
+        let depths = target
             .depth
             .data
             .par_chunks_mut(rows)
-            .zip(target.triangle.par_chunks_mut(rows))
-            .zip(base.par_chunks_mut(rows))
-            .for_each(|((depth, ids), keys)| {
-                for ((d, t), k) in depth.iter_mut().zip(ids).zip(keys) {
-                    let w = f32::from_bits((*k >> 32) as u32);
-                    (*d, *t) = if w > 0.0 {
-                        (1.0 / w, !(*k as u32))
-                    } else {
-                        (0.0, NO_TRIANGLE)
-                    };
-                    *k = 0;
+            .zip(base.par_chunks_mut(rows));
+        if target.depth_only {
+            depths.for_each(|(depth, keys)| {
+                for (d, k) in depth.iter_mut().zip(keys) {
+                    *d = decode(k).0;
                 }
             });
-        self.layers_clear = true;
+        } else {
+            depths
+                .zip(target.triangle.par_chunks_mut(rows))
+                .for_each(|((depth, keys), ids)| {
+                    for ((d, t), k) in depth.iter_mut().zip(ids).zip(keys) {
+                        (*d, *t) = decode(k);
+                    }
+                });
+        }
+        key_layers.clear = true;
         any
     }
 
@@ -558,22 +691,6 @@ impl Rasterizer {
             .filter(|(_, &visible)| visible)
             .map(|((state, tris), _)| visit_chunk(screen, tris, state, &visit))
             .reduce(|| false, |a, b| a || b)
-    }
-
-    /// Makes the first `count` layers hold `pixels` zero keys. The merge
-    /// leaves layers cleared, so this normally only checks sizes.
-    fn prepare_layers(&mut self, count: usize, pixels: usize) {
-        if self.layers.len() < count {
-            self.layers.resize_with(count, Default::default);
-        }
-        let clear = std::mem::take(&mut self.layers_clear);
-        for layer in &mut self.layers {
-            let layer = layer.get_mut().unwrap_or_else(PoisonError::into_inner);
-            if !clear || layer.len() != pixels {
-                layer.clear();
-                layer.resize(pixels, 0);
-            }
-        }
     }
 }
 
@@ -854,13 +971,13 @@ fn screen_plane(s: &[[f32; 3]; 3]) -> [f32; 3] {
 
 /// Rasterizes a triangle whose vertices are all in front of the near plane
 /// but not all within the guard band, clipping it to the band.
-fn draw_guarded(
+fn draw_guarded<K: Key>(
     view: &View,
     s: &[[f32; 3]; 3],
     id: u32,
     row0: usize,
     row1: usize,
-    keys: &mut [u64],
+    keys: &mut [K],
 ) {
     let mut poly = Polygon {
         n: 3,
@@ -876,7 +993,14 @@ fn draw_guarded(
 }
 
 /// Rasterizes a triangle that crosses the near plane (camera-space corners).
-fn draw_clipped(view: &View, c: &[Vec3; 3], id: u32, row0: usize, row1: usize, keys: &mut [u64]) {
+fn draw_clipped<K: Key>(
+    view: &View,
+    c: &[Vec3; 3],
+    id: u32,
+    row0: usize,
+    row1: usize,
+    keys: &mut [K],
+) {
     // The clipped corners' depths are all `near`, so the plane comes from the
     // camera-space triangle: n·X = d gives 1/z = (n·ray(u, v)) / d.
     let n = (c[1] - c[0]).cross(c[2] - c[0]);
@@ -907,14 +1031,14 @@ fn draw_clipped(view: &View, c: &[Vec3; 3], id: u32, row0: usize, row1: usize, k
 /// inner edges are shared exactly and the tie rule covers them once.
 #[allow(clippy::too_many_arguments)]
 #[inline]
-fn fill_polygon(
+fn fill_polygon<K: Key>(
     view: &View,
     poly: &Polygon,
     plane: [f32; 3],
     id: u32,
     row0: usize,
     row1: usize,
-    keys: &mut [u64],
+    keys: &mut [K],
 ) {
     let first = snap(&poly.p[0]);
     let mut prev = snap(&poly.p[1]);
@@ -923,18 +1047,6 @@ fn fill_polygon(
         fill_triangle(view, [first, prev, next], || plane, id, row0, row1, keys);
         prev = next;
     }
-}
-
-/// A pixel's depth-test key: the inverse depth's bits above the complement
-/// of the triangle id. Positive floats order like their bits, so the largest
-/// key is the nearest triangle and, among equally near ones, the lowest id:
-/// the winner of drawing in id order with a strict test, but independent of
-/// the drawing order, which lets threads draw into layers merged by `max`.
-/// Non-positive (or NaN) inverse depths get the key of an empty pixel's depth.
-#[inline]
-fn depth_key(w: f32, id: u32) -> u64 {
-    let bits = if w > 0.0 { w.to_bits() } else { 0 };
-    (u64::from(bits) << 32) | u64::from(!id)
 }
 
 /// How many rows of pixel centres the box of a snapped triangle spans (not
@@ -964,14 +1076,14 @@ fn snap(p: &[f32; 2]) -> [i64; 2] {
 /// gives the inverse-depth plane when a pixel turns out to be covered.
 #[allow(clippy::too_many_arguments)]
 #[inline(always)]
-fn fill_triangle(
+fn fill_triangle<K: Key>(
     view: &View,
     q: [[i64; 2]; 3],
     plane: impl Fn() -> [f32; 3],
     id: u32,
     row0: usize,
     row1: usize,
-    keys: &mut [u64],
+    keys: &mut [K],
 ) {
     let x0 = q[0][0].min(q[1][0]).min(q[2][0]);
     let x1 = q[0][0].max(q[1][0]).max(q[2][0]);
@@ -1022,7 +1134,7 @@ fn fill_triangle(
             // a larger triangle into a one-pixel one).
             let w = a * px0 as f32 + (b * py0 as f32 + k);
             let at = (py0 as usize - row0) * view.width + px0 as usize;
-            keys[at] = keys[at].max(depth_key(w, id));
+            keys[at] = keys[at].max(K::new(w, id));
         }
         return;
     }
@@ -1053,7 +1165,7 @@ fn fill_triangle(
             if (e[0] | e[1] | e[2]) >= 0 {
                 let w = a * px as f32 + wy;
                 let at = row + px as usize;
-                keys[at] = keys[at].max(depth_key(w, id));
+                keys[at] = keys[at].max(K::new(w, id));
             }
             e[0] += step_x[0];
             e[1] += step_x[1];
@@ -1433,6 +1545,17 @@ mod tests {
                 |r: &RenderTarget| r.depth.data.iter().map(|d| d.to_bits()).collect::<Vec<_>>();
             assert_eq!(bits(&a), bits(&b));
             assert_eq!(a.triangle, b.triangle);
+            // Depth alone, with either kernel: the same depths, no ids.
+            for rasterizer in [&mut fastest, &mut portable] {
+                let mut depth_only = RenderTarget::depth_only();
+                rasterizer.render(positions, triangles, &k, &pose, 0.05, &mut depth_only);
+                assert_eq!(bits(&depth_only), bits(&a));
+                assert!(depth_only.triangle.is_empty());
+                // and the layers of either kind are left clean for the other.
+                let mut again = RenderTarget::default();
+                rasterizer.render(positions, triangles, &k, &pose, 0.05, &mut again);
+                assert_eq!((bits(&again), &again.triangle), (bits(&a), &a.triangle));
+            }
             let points = |r: &Rasterizer| {
                 let s = r.screen_points().iter().flatten().map(|x| x.to_bits());
                 (s.collect::<Vec<_>>(), r.snapped.clone())

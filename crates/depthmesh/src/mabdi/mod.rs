@@ -273,7 +273,7 @@ impl MabdiMapper {
             mesh,
             iteration: 0,
             rasterizer: Rasterizer::new(),
-            expected: RenderTarget::default(),
+            expected: RenderTarget::depth_only(),
             classes: Vec::new(),
             mesher: DepthMesher::new(),
             smoother: Smoother::default(),

@@ -14,7 +14,7 @@
 //! and without fused multiply-adds, so the keys written are bit for bit
 //! those of the portable path, which draws whatever is left here.
 
-use super::{depth_key, Vertices, View, GUARD_BAND, OFF_GRID, SUBPIXEL, SUBPIXEL_BITS};
+use super::{Key, Vertices, View, GUARD_BAND, OFF_GRID, SUBPIXEL, SUBPIXEL_BITS};
 use crate::camera::Pose;
 use glam::Vec3;
 use std::arch::x86_64::*;
@@ -44,11 +44,11 @@ type Corners = [__m256i; 3];
 /// The CPU must have AVX2 and the vertex arrays of `v` must be
 /// [`usable`] sizes.
 #[target_feature(enable = "avx2")]
-pub(super) unsafe fn draw_small(
+pub(super) unsafe fn draw_small<K: Key>(
     v: &Vertices,
     tris: &[[u32; 3]; 8],
     first: u32,
-    keys: &mut [u64],
+    keys: &mut [K],
 ) -> u32 {
     let zero = _mm256_setzero_si256();
     // Corner indices, clamped into the arrays: a lane with an index out of
@@ -177,7 +177,7 @@ pub(super) unsafe fn draw_small(
                     let lane = lanes.trailing_zeros() as usize;
                     lanes &= lanes - 1;
                     let at = at_lanes[lane] as usize;
-                    keys[at] = keys[at].max(depth_key(w_lanes[lane], first + lane as u32));
+                    keys[at] = keys[at].max(K::new(w_lanes[lane], first + lane as u32));
                 }
             }
             for i in 0..3 {
@@ -275,8 +275,8 @@ pub(super) struct Edges {
 
 /// Where [`fill_rows`] draws: depth keys of the image rows from `row0` on,
 /// `width` a row.
-pub(super) struct Target<'a> {
-    pub keys: &'a mut [u64],
+pub(super) struct Target<'a, K> {
+    pub keys: &'a mut [K],
     pub width: usize,
     pub row0: usize,
 }
@@ -285,13 +285,13 @@ pub(super) struct Target<'a> {
 /// the pixel centres in rows `rows` and columns `cols` (absolute) inside
 /// `edges` with depths from `plane`.
 #[target_feature(enable = "avx2")]
-pub(super) fn fill_rows(
+pub(super) fn fill_rows<K: Key>(
     edges: &Edges,
     plane: [f32; 3],
     id: u32,
     rows: std::ops::RangeInclusive<usize>,
     cols: std::ops::RangeInclusive<usize>,
-    target: Target,
+    target: Target<K>,
 ) {
     let lane = _mm256_setr_epi32(0, 1, 2, 3, 4, 5, 6, 7);
     let mut e_row = [_mm256_setzero_si256(); 3];
@@ -328,7 +328,7 @@ pub(super) fn fill_rows(
                     let l = covered.trailing_zeros() as usize;
                     covered &= covered - 1;
                     let key = &mut row[px + l];
-                    *key = (*key).max(depth_key(w_lanes[l], id));
+                    *key = (*key).max(K::new(w_lanes[l], id));
                 }
             }
             for (e, step) in e.iter_mut().zip(&step_8) {
