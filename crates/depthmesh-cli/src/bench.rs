@@ -8,7 +8,7 @@ use depthmesh::atomic::write_atomic;
 use depthmesh::codec::{Codec, Decoder, Encoder, RawDepth};
 use depthmesh::dataset::{Dataset, DatasetOptions, FrameRange};
 use depthmesh::eval::distance::MeshDistance;
-use depthmesh::eval::{fraction_within, triangles_on};
+use depthmesh::eval::{area_on, fraction_within, triangles_on};
 use depthmesh::mabdi::{MabdiConfig, MabdiMapper, NaiveMapper};
 use depthmesh::map::Mapper;
 use depthmesh::mesh::ply::{write_ply, PlyFormat};
@@ -451,8 +451,15 @@ fn mabdi_removal(args: &MabdiRemovalArgs) -> Result<()> {
             let present = object.remove_at.is_none() && object.appear_at.is_none();
             let unchanged = present.then(|| on(&mut steady, o));
             // Surface of the object with M within 1 cm: unlike triangles, not
-            // raised by surface added again behind a stale object.
+            // raised by surface added again behind a stale object; the area
+            // of M's triangles on it over that surface says how many layers
+            // of it M holds.
             let mapped = |m: &mut MabdiMapper| fraction_within(&object.mesh, m.mesh(), 0.01, 0.01);
+            let layers = |m: &mut MabdiMapper| {
+                let covered = mapped(m)? * object.mesh.area();
+                let area = area_on(m.mesh(), &index[o].0, &index[o].1);
+                (covered > 0.0).then(|| area / covered)
+            };
             json!({
                 "name": object.name,
                 "returns": object.returns,
@@ -465,6 +472,8 @@ fn mabdi_removal(args: &MabdiRemovalArgs) -> Result<()> {
                 "kept_vs_unchanged_scene": unchanged.map(|u| with as f64 / u.max(1) as f64),
                 "surface_mapped": mapped(&mut removing),
                 "surface_mapped_keep_removed": mapped(&mut keeping),
+                "surface_layers": layers(&mut removing),
+                "surface_layers_keep_removed": layers(&mut keeping),
                 "peak_before_removal": object.remove_at.map(|_| peak[o]),
                 "left_after": left[o],
                 "gone_after": left[o].map(|l| 1.0 - l as f64 / peak[o].max(1) as f64),

@@ -62,12 +62,27 @@ pub fn fraction_within(mesh: &Mesh, reference: &Mesh, tolerance: f32, spacing: f
 pub fn triangles_on(mesh: &Mesh, object: &MeshDistance, others: &MeshDistance) -> usize {
     (0..mesh.triangle_count())
         .into_par_iter()
-        .filter(|&t| {
-            let [a, b, c] = mesh.corners(t);
-            let p = (a + b + c) / 3.0;
-            object.distance(p).is_some() && others.distance(p).is_none()
-        })
+        .filter(|&t| on_object(mesh, t, object, others))
         .count()
+}
+
+/// The summed area of the [`triangles_on`] an object, in square metres:
+/// over the object's area that a mesh covers (see [`fraction_within`]),
+/// how many layers of surface it keeps there.
+pub fn area_on(mesh: &Mesh, object: &MeshDistance, others: &MeshDistance) -> f64 {
+    (0..mesh.triangle_count())
+        .into_par_iter()
+        .filter(|&t| on_object(mesh, t, object, others))
+        .map(|t| f64::from(mesh.triangle_area(t)))
+        .sum::<f64>()
+        + 0.0 // an empty sum is −0.0
+}
+
+/// Whether triangle `t`'s centroid is within reach of `object` and out of reach of `others`.
+fn on_object(mesh: &Mesh, t: usize, object: &MeshDistance, others: &MeshDistance) -> bool {
+    let [a, b, c] = mesh.corners(t);
+    let p = (a + b + c) / 3.0;
+    object.distance(p).is_some() && others.distance(p).is_none()
 }
 
 #[cfg(test)]
