@@ -595,10 +595,9 @@ impl Mapper for MabdiMapper {
             &k,
             pose,
             self.iteration,
-            self.config.settling.map(|s| {
-                let (a, b) = self.config.novelty.quadratic();
-                (s.error * a, s.error * b)
-            }),
+            self.config
+                .settling
+                .map(|s| s.mesher_bound(self.config.novelty)),
         );
         self.patches.added(added, pose, self.iteration);
         let mesh_ms = lap();

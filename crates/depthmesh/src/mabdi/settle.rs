@@ -51,6 +51,15 @@ pub struct Settling {
     pub error: f32,
 }
 
+impl Settling {
+    /// The adaptive mesher's bound, `(a, b)` in metres `a + b·z²` at depth
+    /// z: the same fraction `error` of the novelty threshold as settling's own.
+    pub fn mesher_bound(&self, novelty: Threshold) -> (f32, f32) {
+        let (a, b) = novelty.quadratic();
+        (self.error * a, self.error * b)
+    }
+}
+
 /// Triangles per simplification group at most: two of the mesher's
 /// 64×64-pixel tiles.
 const GROUP: usize = 2 * 64 * 64 * 2;
