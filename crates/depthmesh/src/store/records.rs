@@ -32,6 +32,7 @@ fn track_json(t: &TrackRecord) -> Value {
         LostReason::EmptyModel => json!(["empty_model", 0.0]),
         LostReason::FewInliers(x) => json!(["few_inliers", x]),
         LostReason::LargeError(x) => json!(["large_error", x]),
+        LostReason::Contradicted(x) => json!(["contradicted", x]),
         LostReason::Ambiguous(n) => json!(["ambiguous", n]),
         LostReason::Jump(x) => json!(["jump", x]),
     });
@@ -63,6 +64,7 @@ fn track_from(v: &Value) -> Result<TrackRecord, String> {
                 Some("empty_model") => LostReason::EmptyModel,
                 Some("few_inliers") => LostReason::FewInliers(x),
                 Some("large_error") => LostReason::LargeError(x),
+                Some("contradicted") => LostReason::Contradicted(x),
                 Some("ambiguous") => LostReason::Ambiguous(x as u8),
                 Some("jump") => LostReason::Jump(x as f32),
                 _ => return Err("track: unknown reason".into()),

@@ -270,29 +270,43 @@ pub fn apply_motion(pose: &Pose, omega: [f64; 3], t: [f64; 3]) -> Pose {
     Pose::from_quat(moved.quat(), moved.translation)
 }
 
+/// How far a frame agrees with a model view (see [`agreement`]).
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub struct Agreement {
+    /// Of the frame's measured points, the fraction within the distance
+    /// of the model's surface.
+    pub overlap: f64,
+    /// Of the frame's points that fall on the model's surface (a model
+    /// pixel with a point), the fraction within the distance of it: where
+    /// the map has seen surface, whether the frame sees the same.
+    pub on_surface: f64,
+    /// RMS distance of the points within the distance (metres).
+    pub rms: f64,
+}
+
 /// How far a frame agrees with a model view, for verifying a pose found
-/// without a prediction: the fraction of the frame's measured points
-/// (normals or not) that land within `distance` of the model's surface,
-/// and the RMS distance of those. The surface at a model pixel is the
-/// plane through its point (the point alone where it has no normal): the
-/// view is coarser than the frame, and on a slanted or distant surface a
-/// point on it can lie centimetres from the pixel's centre (a correct
-/// pose on 7-Scenes matched 48 % of the frame point to point, 50 %
-/// being the bar).
-pub fn agreement(frame: &Level, model: &Level, frame_to_model: &Pose, distance: f32) -> (f64, f64) {
+/// without a prediction: which of the frame's measured points (normals or
+/// not) land within `distance` of the model's surface, among all of them
+/// and among those that fall where the model has surface. The surface at a
+/// model pixel is the plane through its point (the point alone where it
+/// has no normal): the view is coarser than the frame, and on a slanted or
+/// distant surface a point on it can lie centimetres from the pixel's
+/// centre (a correct pose on 7-Scenes matched 48 % of the frame point to
+/// point, 50 % being the bar then).
+pub fn agreement(frame: &Level, model: &Level, frame_to_model: &Pose, distance: f32) -> Agreement {
     let (mw, mh) = model.size();
     let Some(mk) = model.intrinsics else {
-        return (0.0, 0.0);
+        return Agreement::default();
     };
     let max_d2 = distance * distance;
-    let (measured, near, squared) = frame
+    let (measured, on_surface, near, squared) = frame
         .points
         .par_iter()
         .fold(
-            || (0usize, 0usize, 0.0f64),
-            |(measured, near, squared), &p| {
+            || (0usize, 0usize, 0usize, 0.0f64),
+            |(measured, on_surface, near, squared), &p| {
                 if p.z <= 0.0 {
-                    return (measured, near, squared);
+                    return (measured, on_surface, near, squared);
                 }
                 let q = frame_to_model.transform_point(p);
                 let off = mk.project(q).and_then(|uv| {
@@ -309,14 +323,24 @@ pub fn agreement(frame: &Level, model: &Level, frame_to_model: &Pose, distance: 
                     })
                 });
                 match off {
-                    Some(d2) if d2 <= max_d2 => (measured + 1, near + 1, squared + f64::from(d2)),
-                    _ => (measured + 1, near, squared),
+                    Some(d2) if d2 <= max_d2 => (
+                        measured + 1,
+                        on_surface + 1,
+                        near + 1,
+                        squared + f64::from(d2),
+                    ),
+                    Some(_) => (measured + 1, on_surface + 1, near, squared),
+                    None => (measured + 1, on_surface, near, squared),
                 }
             },
         )
-        .reduce(|| (0, 0, 0.0), |a, b| (a.0 + b.0, a.1 + b.1, a.2 + b.2));
-    (
-        near as f64 / measured.max(1) as f64,
-        (squared / near.max(1) as f64).sqrt(),
-    )
+        .reduce(
+            || (0, 0, 0, 0.0),
+            |a, b| (a.0 + b.0, a.1 + b.1, a.2 + b.2, a.3 + b.3),
+        );
+    Agreement {
+        overlap: near as f64 / measured.max(1) as f64,
+        on_surface: near as f64 / on_surface.max(1) as f64,
+        rms: (squared / near.max(1) as f64).sqrt(),
+    }
 }

@@ -101,12 +101,20 @@ pub struct TrackerConfig {
     /// same frame-to-frame consistency; ATE 5.26 against 5.38 cm) in a third
     /// of the ray-casting time. Never below [`MIN_MODEL_WIDTH`] pixels.
     pub model_halvings: u32,
-    /// A pose found after a loss (near the last pose or from a keyframe)
-    /// is accepted only if at least this fraction of the frame's points lie
-    /// within [`TrackerConfig::verify_distance`] of the map's view from it,
-    /// with the RMS error within [`TrackerConfig::max_rms`] and no weak
-    /// direction: a wrong pose must never be fused.
+    /// A pose found after a loss (near the last pose, by global
+    /// registration or from a keyframe) is accepted only if at least this
+    /// fraction of the frame's points that fall on the map's surface, in
+    /// the map's view from it, lie within [`TrackerConfig::verify_distance`]
+    /// of it, at least [`TrackerConfig::verify_overlap`] of all its points
+    /// do, the RMS error is within [`TrackerConfig::max_rms`] and no
+    /// direction is weak: a wrong pose must never be fused.
     pub verify_inlier_fraction: f64,
+    /// The least fraction of a frame's points that must match the map's
+    /// surface for a pose found after a loss: the camera may come back
+    /// looking half at what the map has not seen (the rest then falls
+    /// where the map's view is empty, which contradicts nothing), but not
+    /// at a patch of it alone.
+    pub verify_overlap: f64,
     /// Distance of a verified match (metres).
     pub verify_distance: f32,
     /// Keyframes for relocalisation.
@@ -128,7 +136,8 @@ impl Default for TrackerConfig {
             max_jump: 0.3,
             convergence: 1e-5,
             model_halvings: 2,
-            verify_inlier_fraction: 0.5,
+            verify_inlier_fraction: 0.7,
+            verify_overlap: 0.3,
             verify_distance: 0.03,
             relocalisation: FernConfig::default(),
         }
@@ -164,6 +173,7 @@ impl TrackerConfig {
                 0.0,
                 1.0,
             ),
+            ("verify_overlap", self.verify_overlap, 0.0, 1.0),
             // 1/3 is the largest smallest eigenvalue (three orthogonal
             // planes); at or above it every direction would be weak.
             ("weak_conditioning", self.weak_conditioning, 0.0, 1.0 / 3.0),
@@ -227,6 +237,10 @@ pub enum LostReason {
     FewInliers(f64),
     /// The matched points disagree with the model (RMS error, metres).
     LargeError(f64),
+    /// Of the frame's points that fall on the map's surface, too few match
+    /// it (fraction): the frame sees something else where the map has seen
+    /// surface.
+    Contradicted(f64),
     /// A pose found after a loss leaves this many directions weakly
     /// constrained: too ambiguous to accept.
     Ambiguous(u8),
@@ -242,6 +256,11 @@ impl fmt::Display for LostReason {
                 write!(f, "only {:.0} % of the points match the map", x * 100.0)
             }
             LostReason::LargeError(e) => write!(f, "residual {:.1} mm is too large", e * 1e3),
+            LostReason::Contradicted(x) => write!(
+                f,
+                "only {:.0} % of the points on the map's surface match it",
+                x * 100.0
+            ),
             LostReason::Ambiguous(n) => write!(
                 f,
                 "the pose found leaves {n} direction{} weakly constrained, too ambiguous to accept",
@@ -798,14 +817,17 @@ impl Tracker {
         } else if recovering {
             // Verified by depth agreement at the pose found: the frame at
             // half resolution against the finest model level.
-            (inlier_fraction, rms) = agreement(
+            let agree = agreement(
                 &self.frame.levels[1],
                 &self.model.levels[0],
                 &relative,
                 self.config.verify_distance,
             );
-            lost = if inlier_fraction < self.config.verify_inlier_fraction {
-                Some(LostReason::FewInliers(inlier_fraction))
+            (inlier_fraction, rms) = (agree.overlap, agree.rms);
+            lost = if agree.overlap < self.config.verify_overlap {
+                Some(LostReason::FewInliers(agree.overlap))
+            } else if agree.on_surface < self.config.verify_inlier_fraction {
+                Some(LostReason::Contradicted(agree.on_surface))
             } else if rms > self.config.max_rms {
                 Some(LostReason::LargeError(rms))
             } else if weak.count > 0 {
@@ -1378,6 +1400,36 @@ translation = [0.2, 0.225, -0.1]
         }
         let found_at = frames_until_found(&mut tracker, &mut sensor, &room, &back);
         assert!(found_at < 10, "found after {found_at} frames");
+    }
+
+    #[test]
+    fn a_view_the_map_only_half_explains_is_found_at_its_pose() {
+        // The map has seen the room but not the wall the camera, coming
+        // back, faces: most of the frame falls where the map's view is
+        // empty, and contradicts nothing there.
+        let room = scene(ROOM);
+        let mut mapped = scene(ROOM);
+        mapped.objects.retain(|o| o.name != "wall -z");
+        let k = Intrinsics::from_vertical_fov(320, 240, 60.0);
+        let mut sensor = SimulatedSensor::new(k, 0.4, 6.0, NoiseModel::Kinect, 7).unwrap();
+        let mut tracker = Tracker::new(TrackerConfig::default(), k, Pose::IDENTITY).unwrap();
+        for i in 0..36 {
+            let pose = around_room(10.0 * i as f32);
+            tracker.learn_keyframe(&sensor.capture(&mapped, i, &pose).depth, &pose);
+        }
+        let map = scene_map(&mapped);
+        let pose = Pose::look_at(
+            Vec3::new(-0.2, 1.3, 2.0),
+            Vec3::new(0.0, 0.9, -3.0),
+            Vec3::Y,
+        );
+        let t = tracker.relocalise(&sensor.capture(&room, 99, &pose).depth, &map);
+        assert_eq!(t.lost, None);
+        // Less than half of the frame matches the map (the bar for the
+        // whole frame once was a half), all of what falls on its surface does.
+        assert!(t.inlier_fraction < 0.5, "{}", t.inlier_fraction);
+        let (dt, dr) = error(&t.pose, &pose);
+        assert!(dt < 0.02 && dr < 1.0, "{dt} m {dr}°");
     }
 
     #[test]
