@@ -1402,6 +1402,19 @@ translation = [0.2, 0.225, -0.1]
         assert!(found_at < 10, "found after {found_at} frames");
     }
 
+    /// A Kinect-noise sensor (noise seed `seed`) and a tracker that has
+    /// learnt keyframes of `scene` all around it, every 10°.
+    fn keyframes_around(scene: &Scene, seed: u64) -> (SimulatedSensor, Tracker) {
+        let k = Intrinsics::from_vertical_fov(320, 240, 60.0);
+        let mut sensor = SimulatedSensor::new(k, 0.4, 6.0, NoiseModel::Kinect, seed).unwrap();
+        let mut tracker = Tracker::new(TrackerConfig::default(), k, Pose::IDENTITY).unwrap();
+        for i in 0..36 {
+            let pose = around_room(10.0 * i as f32);
+            tracker.learn_keyframe(&sensor.capture(scene, i, &pose).depth, &pose);
+        }
+        (sensor, tracker)
+    }
+
     #[test]
     fn a_view_the_map_only_half_explains_is_found_at_its_pose() {
         // The map has seen the room but not the wall the camera, coming
@@ -1410,13 +1423,7 @@ translation = [0.2, 0.225, -0.1]
         let room = scene(ROOM);
         let mut mapped = scene(ROOM);
         mapped.objects.retain(|o| o.name != "wall -z");
-        let k = Intrinsics::from_vertical_fov(320, 240, 60.0);
-        let mut sensor = SimulatedSensor::new(k, 0.4, 6.0, NoiseModel::Kinect, 7).unwrap();
-        let mut tracker = Tracker::new(TrackerConfig::default(), k, Pose::IDENTITY).unwrap();
-        for i in 0..36 {
-            let pose = around_room(10.0 * i as f32);
-            tracker.learn_keyframe(&sensor.capture(&mapped, i, &pose).depth, &pose);
-        }
+        let (mut sensor, mut tracker) = keyframes_around(&mapped, 7);
         let map = scene_map(&mapped);
         let pose = Pose::look_at(
             Vec3::new(-0.2, 1.3, 2.0),
@@ -1452,13 +1459,7 @@ radius = 0.3
 translation = [0.0, 0.3, 0.6]
 "#,
         );
-        let k = Intrinsics::from_vertical_fov(320, 240, 60.0);
-        let mut sensor = SimulatedSensor::new(k, 0.4, 6.0, NoiseModel::Kinect, 5).unwrap();
-        let mut tracker = Tracker::new(TrackerConfig::default(), k, Pose::IDENTITY).unwrap();
-        for i in 0..36 {
-            let pose = around_room(10.0 * i as f32);
-            tracker.learn_keyframe(&sensor.capture(&room, i, &pose).depth, &pose);
-        }
+        let (mut sensor, mut tracker) = keyframes_around(&room, 5);
         assert!(tracker.keyframes() > 3);
         // The map is the room; the frames show another place from the same
         // kind of poses.
