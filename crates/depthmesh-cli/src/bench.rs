@@ -454,12 +454,14 @@ fn mabdi_removal(args: &MabdiRemovalArgs) -> Result<()> {
             // raised by surface added again behind a stale object; the area
             // of M's triangles on it over that surface says how many layers
             // of it M holds.
-            let mapped = |m: &mut MabdiMapper| fraction_within(&object.mesh, m.mesh(), 0.01, 0.01);
-            let layers = |m: &mut MabdiMapper| {
-                let covered = mapped(m)? * object.mesh.area();
+            let mapped = |m: &mut MabdiMapper| {
+                let share = fraction_within(&object.mesh, m.mesh(), 0.01, 0.01);
+                let covered = share.unwrap_or(0.0) * object.mesh.area();
                 let area = area_on(m.mesh(), &index[o].0, &index[o].1);
-                (covered > 0.0).then(|| area / covered)
+                (share, (covered > 0.0).then(|| area / covered))
             };
+            let (surface, layers) = mapped(&mut removing);
+            let (surface_kept, layers_kept) = mapped(&mut keeping);
             json!({
                 "name": object.name,
                 "returns": object.returns,
@@ -470,10 +472,10 @@ fn mabdi_removal(args: &MabdiRemovalArgs) -> Result<()> {
                 "kept_vs_keep_removed": with as f64 / without.max(1) as f64,
                 "triangles_unchanged_scene": unchanged,
                 "kept_vs_unchanged_scene": unchanged.map(|u| with as f64 / u.max(1) as f64),
-                "surface_mapped": mapped(&mut removing),
-                "surface_mapped_keep_removed": mapped(&mut keeping),
-                "surface_layers": layers(&mut removing),
-                "surface_layers_keep_removed": layers(&mut keeping),
+                "surface_mapped": surface,
+                "surface_mapped_keep_removed": surface_kept,
+                "surface_layers": layers,
+                "surface_layers_keep_removed": layers_kept,
                 "peak_before_removal": object.remove_at.map(|_| peak[o]),
                 "left_after": left[o],
                 "gone_after": left[o].map(|l| 1.0 - l as f64 / peak[o].max(1) as f64),

@@ -1,4 +1,5 @@
-//! CPU z-buffer rasterizer: metric depth and triangle ids of a mesh seen from a pose.
+//! CPU z-buffer rasterizer: metric depth (and, unless only depth is asked
+//! for, triangle ids) of a mesh seen from a pose.
 //!
 //! This is what the simulated sensor uses to image a scene and what MABDI uses
 //! to predict the expected depth image E from the global mesh. Design points:
@@ -19,7 +20,8 @@
 //!   per-thread layer of depth keys, and files the others (tall, near-clipped or
 //!   far-reaching) under the horizontal bands they overlap; bands are then
 //!   rasterized independently and the layers merged by `max`. Keys order by
-//!   depth, then id, so the result does not depend on the drawing order.
+//!   depth, then id (depth alone when no ids are asked for), so the result
+//!   does not depend on the drawing order.
 //!   Scratch buffers live in [`Rasterizer`] and are reused from frame to frame.
 //! * **AVX2 where the CPU has it** (detected at run time; the crate is built
 //!   for any x86-64): vertices are projected and small triangles drawn
@@ -54,8 +56,9 @@ const SUBPIXEL: f32 = (1 << SUBPIXEL_BITS) as f32;
 /// in screen space; keeps fixed-point products well inside `i64`.
 const GUARD_BAND: f32 = 2048.0;
 
-/// The result of a render: depth along the optical axis and the id of the
-/// triangle seen at each pixel.
+/// The result of a render: depth along the optical axis and, unless the
+/// target is [`RenderTarget::depth_only`], the id of the triangle seen at
+/// each pixel.
 #[derive(Clone, Debug, Default)]
 pub struct RenderTarget {
     /// Metric depth; 0 where nothing is seen.
@@ -153,12 +156,14 @@ impl Kernel {
         }
     }
 }
+
 /// Per-pixel depth keys (see [`Key`]), one layer per worker thread: small
 /// triangles are drawn into the layer of the thread that bins them, and the
 /// layers are merged by `max` at the end (a key a pixel a thread: cheaper
 /// than re-reading every small triangle per band).
 #[derive(Debug, Default)]
 struct Layers<K> {
+    /// The layers, each behind a lock that only its thread takes.
     layers: Vec<Mutex<Vec<K>>>,
     /// Whether every layer holds only zero keys, as the merge leaves them.
     clear: bool,
@@ -189,9 +194,11 @@ impl<K: Key> Layers<K> {
 /// a strict test, but independent of the drawing order, which lets threads
 /// draw into layers merged by `max`. Non-positive (or NaN) inverse depths
 /// get the key of an empty pixel's depth.
-trait Key: Copy + Ord + Default + Send + Sync + std::fmt::Debug {
+trait Key: Copy + Ord + Send + Sync + std::fmt::Debug {
     /// The key of no surface.
     const EMPTY: Self;
+    /// Whether the key holds the triangle id.
+    const IDS: bool;
     /// The key of inverse depth `w` on triangle `id`.
     fn new(w: f32, id: u32) -> Self;
     /// The inverse depth and triangle id of a key ([`NO_TRIANGLE`] when the
@@ -213,6 +220,7 @@ fn depth_bits(w: f32) -> u32 {
 
 impl Key for u64 {
     const EMPTY: Self = 0;
+    const IDS: bool = true;
     #[inline]
     fn new(w: f32, id: u32) -> Self {
         (u64::from(depth_bits(w)) << 32) | u64::from(!id)
@@ -228,6 +236,7 @@ impl Key for u64 {
 
 impl Key for u32 {
     const EMPTY: Self = 0;
+    const IDS: bool = false;
     #[inline]
     fn new(w: f32, _: u32) -> Self {
         depth_bits(w)
@@ -650,7 +659,7 @@ impl Rasterizer {
             .data
             .par_chunks_mut(rows)
             .zip(base.par_chunks_mut(rows));
-        if target.depth_only {
+        if !K::IDS {
             depths.for_each(|(depth, keys)| {
                 for (d, k) in depth.iter_mut().zip(keys) {
                     *d = decode(k).0;

@@ -66,9 +66,11 @@ pub fn triangles_on(mesh: &Mesh, object: &MeshDistance, others: &MeshDistance) -
         .count()
 }
 
-/// The summed area of the [`triangles_on`] an object, in square metres:
-/// over the object's area that a mesh covers (see [`fraction_within`]),
-/// how many layers of surface it keeps there.
+/// The summed area (square metres) of the triangles of `mesh` that
+/// [`triangles_on`] counts on an object. Over the object's area the mesh
+/// covers ([`fraction_within`]) it says how many layers of surface the
+/// mesh holds there (reading a little low where triangles near other
+/// objects are left out).
 pub fn area_on(mesh: &Mesh, object: &MeshDistance, others: &MeshDistance) -> f64 {
     (0..mesh.triangle_count())
         .into_par_iter()

@@ -101,10 +101,10 @@ pub fn classify(
             let e_row = &expected.data[r * w..(r + 1) * w];
             // The first row and column compare with themselves: never a jump.
             let up = &depth.data[r.saturating_sub(1) * w..][..w];
-            let class = |d: f32, e: f32, left: f32, up: f32| {
+            let class = |d: f32, e: f32, left: f32, above: f32| {
                 let jump = b0 + b1 * d * d;
                 let differs = |n: f32| valid(n) & ((d - n).abs() > jump);
-                let edge = differs(left) | differs(up);
+                let edge = differs(left) | differs(above);
                 let new = (e <= 0.0) | ((d - e).abs() > n0 + n1 * d * d);
                 match (valid(d), edge, new) {
                     (false, _, _) => PixelClass::Invalid,
@@ -118,9 +118,11 @@ pub fn classify(
             // Zipped slices, without branches on the data, so that the row
             // vectorises.
             let pixels = d_row[1..].iter().zip(&e_row[1..]).zip(&d_row[..w - 1]);
-            for (out, (((&d, &e), &left), &up)) in row[1..].iter_mut().zip(pixels.zip(&up[1..])) {
-                *out = class(d, e, left, up);
-                novel += usize::from(*out == PixelClass::Novel);
+            for (pixel, (((&d, &e), &left), &above)) in
+                row[1..].iter_mut().zip(pixels.zip(&up[1..]))
+            {
+                *pixel = class(d, e, left, above);
+                novel += usize::from(*pixel == PixelClass::Novel);
             }
             novel
         })

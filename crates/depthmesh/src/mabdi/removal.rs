@@ -87,7 +87,7 @@ impl Carver {
             // counts as 0, so a minimum is positive exactly when all nine
             // are valid, and a maximum is 0 exactly when none is. One pass
             // per band of rows, each with a row of column extremes of its
-            // own: the image is read once and written once.
+            // own: no pass over the whole image in between, nothing cleared.
             let valid = |d: f32| if d > 0.0 { d } else { 0.0 };
             let data = &depth.data;
             self.column_extremes

@@ -205,6 +205,18 @@ mod tests {
             ..r
         };
         assert_eq!(decode(encode(&tracked).as_bytes()).unwrap(), tracked);
+        let reasons = [
+            LostReason::EmptyModel,
+            LostReason::FewInliers(0.2),
+            LostReason::LargeError(0.03),
+            LostReason::Contradicted(0.6),
+            LostReason::Ambiguous(2),
+        ];
+        for lost in reasons {
+            let mut other = tracked.clone();
+            other.track.as_mut().expect("tracked").lost = Some(lost);
+            assert_eq!(decode(encode(&other).as_bytes()).unwrap(), other);
+        }
         assert!(decode(b"{\"frame\": 1}").is_err());
     }
 }

@@ -280,6 +280,10 @@ pub struct Agreement {
     /// pixel with a point), the fraction within the distance of it: where
     /// the map has seen surface, whether the frame sees the same.
     pub on_surface: f64,
+    /// Of the frame's measured points, the fraction that fall on the
+    /// model's surface but farther than the distance from it: seen in
+    /// front of it or through it.
+    pub contradicted: f64,
     /// RMS distance of the points within the distance (metres).
     pub rms: f64,
 }
@@ -341,6 +345,48 @@ pub fn agreement(frame: &Level, model: &Level, frame_to_model: &Pose, distance: 
     Agreement {
         overlap: near as f64 / measured.max(1) as f64,
         on_surface: near as f64 / on_surface.max(1) as f64,
+        contradicted: (on_surface - near) as f64 / measured.max(1) as f64,
         rms: (squared / near.max(1) as f64).sqrt(),
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::camera::Intrinsics;
+    use crate::image::DepthImage;
+    use crate::track::pyramid::Pyramid;
+
+    /// One level of a 64×48 view whose pixel `(u, v)` sees depth `f(u, v)`.
+    fn level(f: impl Fn(u32, u32) -> f32) -> Level {
+        let k = Intrinsics::from_vertical_fov(64, 48, 60.0);
+        let mut depth = DepthImage::new(64, 48);
+        for v in 0..48 {
+            for u in 0..64 {
+                depth.data[(v * 64 + u) as usize] = f(u, v);
+            }
+        }
+        let mut pyramid = Pyramid::default();
+        pyramid.build(&depth, &k, 1);
+        pyramid.levels.swap_remove(0)
+    }
+
+    #[test]
+    fn agreement_tells_unseen_from_contradicted() {
+        let frame = level(|_, _| 2.0);
+        let at = |model: &Level| agreement(&frame, model, &Pose::IDENTITY, 0.03);
+        // The map has seen the left half only: the right half contradicts nothing.
+        let half = at(&level(|u, _| if u < 32 { 2.0 } else { 0.0 }));
+        assert!((half.overlap - 0.5).abs() < 0.05, "{half:?}");
+        assert!(
+            half.on_surface > 0.99 && half.contradicted < 0.01,
+            "{half:?}"
+        );
+        // The map has a surface 0.5 m nearer over the left quarter: the
+        // frame sees through it there.
+        let through = at(&level(|u, _| if u < 16 { 1.5 } else { 2.0 }));
+        assert!((through.contradicted - 0.25).abs() < 0.05, "{through:?}");
+        assert!((through.on_surface - 0.75).abs() < 0.05, "{through:?}");
+        assert!((through.overlap - 0.75).abs() < 0.05, "{through:?}");
     }
 }

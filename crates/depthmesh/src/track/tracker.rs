@@ -101,13 +101,14 @@ pub struct TrackerConfig {
     /// same frame-to-frame consistency; ATE 5.26 against 5.38 cm) in a third
     /// of the ray-casting time. Never below [`MIN_MODEL_WIDTH`] pixels.
     pub model_halvings: u32,
-    /// A pose found after a loss (near the last pose, by global
-    /// registration or from a keyframe) is accepted only if at least this
-    /// fraction of the frame's points that fall on the map's surface, in
-    /// the map's view from it, lie within [`TrackerConfig::verify_distance`]
-    /// of it, at least [`TrackerConfig::verify_overlap`] of all its points
-    /// do, the RMS error is within [`TrackerConfig::max_rms`] and no
-    /// direction is weak: a wrong pose must never be fused.
+    /// The least fraction, of a frame's points that fall on the map's
+    /// surface, that must match it. A pose found after a loss (near the
+    /// last pose, by global registration or from a keyframe) is accepted
+    /// only if at least this fraction of those points, in the map's view
+    /// from it, lie within [`TrackerConfig::verify_distance`] of its
+    /// surface, at least [`TrackerConfig::verify_overlap`] of all the
+    /// frame's points do, the RMS error is within [`TrackerConfig::max_rms`]
+    /// and no direction is weak: a wrong pose must never be fused.
     pub verify_inlier_fraction: f64,
     /// The least fraction of a frame's points that must match the map's
     /// surface for a pose found after a loss: the camera may come back
@@ -660,8 +661,11 @@ impl Tracker {
 
     /// ICP from each of `candidates` not within [`SAME_CANDIDATE`] of one
     /// in `tried` (which they join), each against the map's view from that
-    /// pose; the verified result with the most inliers (the first verified
-    /// one if `first`), or the first failure.
+    /// pose; the verified result whose points the map's surface confirms
+    /// most, less those it contradicts (the first verified one if `first`),
+    /// or the first failure. Not the overlap alone: a pose may be verified
+    /// with a third of the frame on the map, and a wrong one that puts more
+    /// of it on the map's surface, much of it off, must not win.
     fn relocalise_from(
         &mut self,
         candidates: &[Pose],
@@ -669,7 +673,7 @@ impl Tracker {
         first: bool,
         map: &dyn Mapper,
     ) -> Tracked {
-        let mut best: Option<Tracked> = None;
+        let mut best: Option<(f64, Tracked)> = None;
         let mut first_failure = Tracked::empty(self.last_good);
         let mut iterations = 0;
         for &pose in candidates {
@@ -688,10 +692,18 @@ impl Tracker {
             let t = self.icp(pose, Pose::IDENTITY, Search::Relocalise);
             iterations += t.iterations;
             match t.lost {
-                None if best.is_none_or(|b| t.inlier_fraction > b.inlier_fraction) => {
-                    best = Some(t)
+                None => {
+                    let agree = agreement(
+                        &self.frame.levels[1],
+                        &self.model.levels[0],
+                        &pose.inverse().compose(&t.pose),
+                        self.config.verify_distance,
+                    );
+                    let score = agree.overlap - agree.contradicted;
+                    if best.as_ref().is_none_or(|(s, _)| score > *s) {
+                        best = Some((score, t));
+                    }
                 }
-                None => {}
                 Some(_) if first_failure.iterations == 0 => first_failure = t,
                 Some(_) => {}
             }
@@ -700,7 +712,7 @@ impl Tracker {
             }
         }
         let mut result = match best {
-            Some(t) => Tracked {
+            Some((_, t)) => Tracked {
                 relocalised: true,
                 ..t
             },
@@ -1186,6 +1198,13 @@ pub(super) mod tests {
                 },
             ),
             (
+                "verify_overlap",
+                TrackerConfig {
+                    verify_overlap: -0.1,
+                    ..d()
+                },
+            ),
+            (
                 "verify_distance",
                 TrackerConfig {
                     verify_distance: 0.0,
@@ -1423,6 +1442,7 @@ translation = [0.2, 0.225, -0.1]
         let room = scene(ROOM);
         let mut mapped = scene(ROOM);
         mapped.objects.retain(|o| o.name != "wall -z");
+        assert_eq!(mapped.objects.len() + 1, room.objects.len());
         let (mut sensor, mut tracker) = keyframes_around(&mapped, 7);
         let map = scene_map(&mapped);
         let pose = Pose::look_at(
@@ -1432,6 +1452,7 @@ translation = [0.2, 0.225, -0.1]
         );
         let t = tracker.relocalise(&sensor.capture(&room, 99, &pose).depth, &map);
         assert_eq!(t.lost, None);
+        assert!(t.relocalised);
         // Less than half of the frame matches the map (the bar for the
         // whole frame once was a half), all of what falls on its surface does.
         assert!(t.inlier_fraction < 0.5, "{}", t.inlier_fraction);
