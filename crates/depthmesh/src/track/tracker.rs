@@ -11,7 +11,7 @@ use super::degeneracy::{Directions, Weak};
 use super::ferns::{FernConfig, Keyframes};
 use super::filter::{Bilateral, BilateralParams};
 use super::global_registration::{GlobalRegistration, MapFeatures};
-use super::icp::{agreement, apply_motion, equations, Association, Equations};
+use super::icp::{agreement, apply_motion, equations, Agreement, Association, Equations};
 use super::pyramid::{half, Pyramid};
 use crate::camera::{Intrinsics, Pose};
 use crate::error::{Error, Result};
@@ -689,16 +689,10 @@ impl Tracker {
             if !self.model_view(&model, self.model_intrinsics) {
                 continue;
             }
-            let t = self.icp(pose, Pose::IDENTITY, Search::Relocalise);
+            let (t, agree) = self.align(pose, Pose::IDENTITY, Search::Relocalise);
             iterations += t.iterations;
             match t.lost {
                 None => {
-                    let agree = agreement(
-                        &self.frame.levels[1],
-                        &self.model.levels[0],
-                        &pose.inverse().compose(&t.pose),
-                        self.config.verify_distance,
-                    );
                     let score = agree.overlap - agree.contradicted;
                     if best.as_ref().is_none_or(|(s, _)| score > *s) {
                         best = Some((score, t));
@@ -729,6 +723,12 @@ impl Tracker {
     /// seen from `base`, starting from the frame motion `predicted` (from
     /// `base`), and the verdict on its result, whose pose is absolute.
     fn icp(&self, base: Pose, predicted: Pose, search: Search) -> Tracked {
+        self.align(base, predicted, search).0
+    }
+
+    /// [`Tracker::icp`], with the frame's agreement with the map's view at
+    /// the pose found when it was verified (after a loss; default else).
+    fn align(&self, base: Pose, predicted: Pose, search: Search) -> (Tracked, Agreement) {
         let recovering = search != Search::Follow;
         let widen = if recovering { 2.0 } else { 1.0 };
         let assoc = Association {
@@ -824,12 +824,13 @@ impl Tracker {
         } else {
             None
         };
+        let mut agree = Agreement::default();
         if search == Search::Recover && jump > self.config.max_jump * widen {
             lost = Some(LostReason::Jump(jump));
         } else if recovering {
             // Verified by depth agreement at the pose found: the frame at
             // half resolution against the finest model level.
-            let agree = agreement(
+            agree = agreement(
                 &self.frame.levels[1],
                 &self.model.levels[0],
                 &relative,
@@ -848,7 +849,7 @@ impl Tracker {
                 None
             };
         }
-        Tracked {
+        let tracked = Tracked {
             pose: base.compose(&relative),
             lost,
             inlier_fraction,
@@ -858,7 +859,8 @@ impl Tracker {
             weak_directions: weak.count,
             weak_axes: weak.axes,
             relocalised: false,
-        }
+        };
+        (tracked, agree)
     }
 
     /// Moves the tracker on by an alignment: to the frame's pose when it
