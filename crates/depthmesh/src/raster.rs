@@ -475,21 +475,35 @@ impl Rasterizer {
     where
         F: Fn(&mut u8, &[[f32; 3]; 3]) -> bool + Sync,
     {
+        let view = View {
+            width: intrinsics.width as usize,
+            height: intrinsics.height as usize,
+            fx: intrinsics.fx,
+            fy: intrinsics.fy,
+            cx: intrinsics.cx,
+            cy: intrinsics.cy,
+            near: near.max(1e-6),
+            vector: self.kernel.vector(geometry.positions.len()),
+        };
+        target.resize(intrinsics.width, intrinsics.height);
+        if view.width == 0 || view.height == 0 {
+            return false;
+        }
+        let world_to_camera = pose.inverse();
         if target.depth_only {
-            self.render_keys::<u32, F>(geometry, intrinsics, pose, near, target, state, visit)
+            self.render_keys::<u32, F>(geometry, view, world_to_camera, target, state, visit)
         } else {
-            self.render_keys::<u64, F>(geometry, intrinsics, pose, near, target, state, visit)
+            self.render_keys::<u64, F>(geometry, view, world_to_camera, target, state, visit)
         }
     }
 
-    /// [`Rasterizer::render_visiting`] with depth keys `K`.
-    #[allow(clippy::too_many_arguments)]
+    /// The passes of [`Rasterizer::render_visiting`] into a target sized
+    /// for `view`, with depth keys `K`.
     fn render_keys<K: Key, F>(
         &mut self,
         geometry: Geometry,
-        intrinsics: &Intrinsics,
-        pose: &Pose,
-        near: f32,
+        view: View,
+        world_to_camera: Pose,
         target: &mut RenderTarget,
         state: Option<&mut [u8]>,
         visit: F,
@@ -502,21 +516,6 @@ impl Rasterizer {
             triangles,
             chunks: bounds,
         } = geometry;
-        let view = View {
-            width: intrinsics.width as usize,
-            height: intrinsics.height as usize,
-            fx: intrinsics.fx,
-            fy: intrinsics.fy,
-            cx: intrinsics.cx,
-            cy: intrinsics.cy,
-            near: near.max(1e-6),
-            vector: self.kernel.vector(positions.len()),
-        };
-        target.resize(intrinsics.width, intrinsics.height);
-        if view.width == 0 || view.height == 0 {
-            return false;
-        }
-        let world_to_camera = pose.inverse();
         let chunks = triangles.len().div_ceil(CHUNK_TRIANGLES);
 
         // Which chunks can be seen, and so which blocks of vertices are needed.
