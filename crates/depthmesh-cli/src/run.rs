@@ -40,10 +40,11 @@ pub fn print_summary(summary: &Map<String, Value>, out: &Path, quiet: bool) {
     );
     if summary.get("tracking") == Some(&Value::Bool(true)) {
         line += &format!(
-            "; tracking lost {} time(s), {} frame(s) not fused ({:.0} % fused)",
+            "; tracking lost {} time(s), {} frame(s) not fused ({:.0} % fused), {} fused with a direction left to the motion model",
             get("lost"),
             get("lost_frames"),
-            100.0 * get("fused_fraction")
+            100.0 * get("fused_fraction"),
+            get("weak_frames"),
         );
     }
     if let Some(ate) = summary.get("ate_rmse_cm").and_then(Value::as_f64) {

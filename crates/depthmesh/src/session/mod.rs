@@ -347,8 +347,10 @@ impl Session {
 
     /// The run's summary keys that do not depend on the front end:
     /// `frames_fused` and `fused_fraction`; `tracking`, and when tracking
-    /// `lost` (times lost), `lost_frames` and `track_ms` (mean per tracked
-    /// frame); the back-end's own keys (see [`Backend::summarise`]); and
+    /// `lost` (times lost), `lost_frames`, `weak_frames` (frames fused with
+    /// a direction left to the motion model: the view did not pin it down,
+    /// so the map there is only as good as the motion's prediction) and
+    /// `track_ms` (mean per tracked frame); the back-end's own keys (see [`Backend::summarise`]); and
     /// for MABDI and the traditional method the element accounting
     /// (`naive_elements`, `elements_vs_naive`, `removed_elements`,
     /// `novel_pixels`).
@@ -364,6 +366,11 @@ impl Session {
         if self.poses.tracking() {
             summary.insert("lost".into(), json!(self.poses.lost));
             summary.insert("lost_frames".into(), json!(self.poses.lost_frames));
+            let weak = self
+                .records
+                .iter()
+                .filter(|r| r.fused() && r.track.is_some_and(|t| t.weak_directions > 0));
+            summary.insert("weak_frames".into(), json!(weak.count()));
             summary.insert(
                 "track_ms".into(),
                 json!(self.poses.track_seconds * 1e3 / self.poses.tracked.max(1) as f64),
