@@ -131,9 +131,10 @@ fn staring_at_a_flat_wall_is_tracked_not_lost() {
     let s = summary(&out);
     assert_eq!(s["lost"], 0);
     assert_eq!(s["lost_frames"], 0);
-    // ...and the run says so, in stats.csv and in the summary: frames that left motions along the wall to the motion model
-    // (measured: 4 of the 5 tracked; the last has enough points to weigh
-    // more than the prediction along every direction).
+    // ...and the run says so, in stats.csv and in the summary: frames that
+    // left motions along the wall to the motion model (measured: 4 of the 5
+    // tracked; the last has enough points to weigh more than the prediction
+    // along every direction).
     let stats = std::fs::read_to_string(out.join("stats.csv")).unwrap();
     let column = stats
         .lines()

@@ -350,7 +350,8 @@ impl Session {
     /// `lost` (times lost), `lost_frames`, `weak_frames` (frames fused with
     /// a direction left to the motion model: the view did not pin it down,
     /// so the map there is only as good as the motion's prediction) and
-    /// `track_ms` (mean per tracked frame); the back-end's own keys (see [`Backend::summarise`]); and
+    /// `track_ms` (mean per tracked frame); the back-end's own keys (see
+    /// [`Backend::summarise`]); and
     /// for MABDI and the traditional method the element accounting
     /// (`naive_elements`, `elements_vs_naive`, `removed_elements`,
     /// `novel_pixels`).
