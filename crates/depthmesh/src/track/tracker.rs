@@ -1456,7 +1456,8 @@ translation = [0.2, 0.225, -0.1]
         assert_eq!(t.lost, None);
         assert!(t.relocalised);
         // Less than half of the frame matches the map (the bar for the
-        // whole frame once was a half), all of what falls on its surface does.
+        // whole frame once was a half); it is accepted because what falls
+        // on the map's surface matches it (at least `verify_inlier_fraction`).
         assert!(t.inlier_fraction < 0.5, "{}", t.inlier_fraction);
         let (dt, dr) = error(&t.pose, &pose);
         assert!(dt < 0.02 && dr < 1.0, "{dt} m {dr}°");
