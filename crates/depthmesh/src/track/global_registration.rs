@@ -440,8 +440,8 @@ fn rigid_fit(pairs: impl Iterator<Item = (Vec3, Vec3)> + Clone) -> Option<Pose> 
 #[derive(Clone, Debug, Default)]
 pub struct MapFeatures {
     cells: HashMap<u64, Cell>,
-    /// Keyframes whose views were described.
-    views: usize,
+    /// The poses whose views were described.
+    described: Vec<Pose>,
     cloud: Cloud,
     /// The described points' descriptors, for nearest-neighbour search.
     tree: FeatureTree,
@@ -450,13 +450,13 @@ pub struct MapFeatures {
 
 impl MapFeatures {
     /// Describes the map's surface seen from `poses` (the keyframes'),
-    /// rendered with `k`, unless it was last described from as many:
-    /// keyframes are only ever added. Every view is rendered again, from
-    /// the map as it is now, so the description depends on the map and the
-    /// keyframes alone, not on when the camera was lost before: a run
-    /// resumed from a checkpoint finds what an uninterrupted one finds.
+    /// rendered with `k`, unless it was last described from the same
+    /// poses. Every view is rendered again, from the map as it is now, so
+    /// the description depends on the map and the poses alone, not on when
+    /// the camera was lost before: a run resumed from a checkpoint finds
+    /// what an uninterrupted one finds.
     pub fn update(&mut self, map: &dyn Mapper, poses: &[Pose], k: &Intrinsics) {
-        if poses.len() == self.views {
+        if poses == self.described.as_slice() {
             return;
         }
         self.cells.clear();
@@ -465,7 +465,8 @@ impl MapFeatures {
             self.view.build(&depth, k, 1);
             accumulate(&self.view.levels[0], pose, &mut self.cells, MAX_MAP_CELLS);
         }
-        self.views = poses.len();
+        self.described.clear();
+        self.described.extend_from_slice(poses);
         self.cloud.build(&self.cells);
         self.tree.build(&self.cloud);
     }
