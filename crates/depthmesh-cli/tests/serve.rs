@@ -5,8 +5,15 @@
 mod common;
 
 use common::served::{Served, TOKEN};
-use common::{assert_fails_with, depthmesh, ok, scratch, simulated_frames_folder};
+use common::{
+    assert_fails_with, depthmesh, ok, scene_frames_folder, scratch, simulated_frames_folder,
+    summary,
+};
+use depthmesh::sim::{Scene, SceneOptions};
+use depthmesh::Pose;
+use glam::{Mat3, Vec3};
 use serde_json::Value;
+use std::path::Path;
 
 fn stream_args<'a>(served: &'a Served, folder: &'a str, out: &'a str) -> Vec<&'a str> {
     vec![
@@ -103,6 +110,34 @@ fn a_live_sensor_gets_its_newest_frames_mapped_and_the_dropped_ones_counted() {
     assert_eq!(count("frames_sent"), 12);
     assert_eq!(count("frames_mapped") + count("frames_dropped"), 12);
     assert!(count("frames_mapped") >= 1);
+    drop(served);
+    std::fs::remove_dir_all(dir).unwrap();
+}
+
+#[test]
+fn a_streamed_weak_view_is_counted_as_the_server_counts_it() {
+    let dir = scratch("serve-weak");
+    let frames = dir.join("frames");
+    std::fs::create_dir_all(&frames).unwrap();
+    // Sliding along a wall 2 m in front of it: the wall leaves the motion
+    // along it to the motion model.
+    let wall = "[[object]]\nname = \"wall\"\nshape = \"box\"\nsize = [20.0, 20.0, 0.1]\n";
+    let wall = Scene::parse(wall, Path::new("wall.toml"), &SceneOptions::default()).unwrap();
+    let poses: Vec<Pose> = (0..6)
+        .map(|i| Pose::new(Mat3::IDENTITY, Vec3::new(0.02 * i as f32, 0.0, -2.0)))
+        .collect();
+    scene_frames_folder(&frames, &wall, &poses);
+    let served = Served::start(&dir.join("server"), &["--voxel", "0.02"]);
+    let out = dir.join("out");
+    let mut args = stream_args(&served, frames.to_str().unwrap(), out.to_str().unwrap());
+    args.extend(["--session", "wall", "--track"]);
+    ok(&depthmesh(&args));
+    let client = summary(&out);
+    let server = summary(&dir.join("server").join("wall"));
+    assert_eq!(client["frames_lost"], 0, "{client}");
+    let weak = client["frames_weak"].as_u64().unwrap();
+    assert!(weak >= 3, "{client}");
+    assert_eq!(server["weak_frames"], weak, "{server}");
     drop(served);
     std::fs::remove_dir_all(dir).unwrap();
 }

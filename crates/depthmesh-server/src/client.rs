@@ -86,6 +86,8 @@ pub struct Progress {
     pub dropped: u64,
     /// Frames tracking lost.
     pub lost: u64,
+    /// Frames fused with a direction left to the motion model.
+    pub weak: u64,
     /// Whether the last verdict was a lost frame.
     pub tracking_lost: bool,
     /// Bytes sent and received.
@@ -281,6 +283,7 @@ fn count(p: &mut Progress, v: &Verdict) {
     p.mapped += 1;
     p.tracking_lost = v.lost.is_some();
     p.lost += u64::from(p.tracking_lost);
+    p.weak += u64::from(!p.tracking_lost && v.weak_directions > 0);
     p.elements = v.elements;
 }
 
@@ -305,6 +308,7 @@ fn client_summary(
     s.insert("frames_mapped".into(), json!(p.mapped));
     s.insert("frames_dropped".into(), json!(p.dropped));
     s.insert("frames_lost".into(), json!(p.lost));
+    s.insert("frames_weak".into(), json!(p.weak));
     s.insert("status_images".into(), json!(status_images));
     s.insert("upload_bytes".into(), json!(p.upload_bytes));
     s.insert("download_bytes".into(), json!(p.download_bytes));

@@ -197,6 +197,7 @@ fn dropped_verdict(frame: u64) -> Verdict {
         frame,
         pose: None,
         lost: None,
+        weak_directions: 0,
         dropped: true,
         ms: 0.0,
         elements: 0,

@@ -57,10 +57,10 @@ impl ExternalView {
     }
 
     /// Sends viewers the parts of `session`'s map that changed, and the
-    /// page's `figures` (`frames`, `lost_frames`, `fps`, `tracking`, as a
-    /// session's). With `settled` (nothing is changing any more), every
-    /// changed part is sent at once, small changes too, so viewers hold
-    /// the map exactly.
+    /// page's `figures` (`frames`, `lost_frames`, `weak_frames`, `fps`,
+    /// `tracking`, as a session's). With `settled` (nothing is changing
+    /// any more), every changed part is sent at once, small changes too,
+    /// so viewers hold the map exactly.
     pub fn publish(&mut self, session: &mut Session, figures: Value, settled: bool) {
         {
             let mut p = self.progress.lock().expect("progress lock");

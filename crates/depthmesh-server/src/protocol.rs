@@ -107,6 +107,10 @@ pub struct Verdict {
     pub pose: Option<[f32; 12]>,
     /// Why tracking lost the frame, if it did.
     pub lost: Option<String>,
+    /// Directions of motion tracking left to the motion model (the view
+    /// did not pin them down); 0 from a server that does not say.
+    #[serde(default)]
+    pub weak_directions: u8,
     /// The server dropped the frame unmapped to keep up (realtime only).
     pub dropped: bool,
     /// Milliseconds the server spent mapping it.

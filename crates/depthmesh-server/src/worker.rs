@@ -259,6 +259,7 @@ fn verdict(index: u64, r: &FrameRecord) -> (Verdict, Option<Pose>) {
         frame: index,
         pose: r.pose.as_ref().map(pose_to_array),
         lost: r.track.and_then(|t| t.lost).map(|l| l.to_string()),
+        weak_directions: r.track.map_or(0, |t| t.weak_directions),
         dropped: false,
         ms: r.ms,
         elements: r.total_elements as u64,

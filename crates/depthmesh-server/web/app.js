@@ -373,6 +373,7 @@ class View {
   figures(m) {
     $('frames').textContent = String(m.frames ?? 0);
     $('lost').textContent = String(m.lost_frames ?? 0);
+    $('weak').textContent = String(m.weak_frames ?? 0);
     $('fps').textContent = (m.fps ?? 0).toFixed(1);
     $('upload').textContent = rate(m.upload_bytes_per_second ?? 0);
     $('tracking').textContent = m.tracking ?? '–';

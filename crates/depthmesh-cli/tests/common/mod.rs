@@ -153,8 +153,17 @@ pub fn write_rgb_png(path: &Path, width: u32, height: u32, rgb: &[u8]) {
 /// sensor sees nothing).
 #[allow(dead_code)] // not every test file needs it
 pub fn simulated_frames_folder(dir: &Path, frames: u32) {
-    use depthmesh::sim::{NoiseModel, PathSpec, SimulatedSensor};
+    use depthmesh::sim::PathSpec;
     let scene = table_scene();
+    let poses = PathSpec::Helix.build(&scene, frames).unwrap();
+    scene_frames_folder(dir, &scene, &poses);
+}
+
+/// A 7-Scenes style frames folder of `scene` seen from `poses`, 160×120, as
+/// [`simulated_frames_folder`].
+#[allow(dead_code)] // not every test file needs it
+pub fn scene_frames_folder(dir: &Path, scene: &depthmesh::sim::Scene, poses: &[depthmesh::Pose]) {
+    use depthmesh::sim::{NoiseModel, SimulatedSensor};
     let k = depthmesh::Intrinsics::from_vertical_fov(160, 120, 60.0);
     let mut sensor = SimulatedSensor::new(k, 0.8, 4.0, NoiseModel::None, 0).unwrap();
     std::fs::write(
@@ -162,13 +171,8 @@ pub fn simulated_frames_folder(dir: &Path, frames: u32) {
         format!("{} 0 {}\n0 {} {}\n0 0 1\n", k.fx, k.cx, k.fy, k.cy),
     )
     .unwrap();
-    for (i, pose) in PathSpec::Helix
-        .build(&scene, frames)
-        .unwrap()
-        .iter()
-        .enumerate()
-    {
-        let frame = sensor.capture(&scene, i as u32 + 1, pose);
+    for (i, pose) in poses.iter().enumerate() {
+        let frame = sensor.capture(scene, i as u32 + 1, pose);
         let mm: Vec<u16> = frame
             .depth
             .data

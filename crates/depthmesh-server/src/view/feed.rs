@@ -290,6 +290,7 @@ impl Feed {
             "frames": records.len(),
             "fused": session.frames_fused(),
             "lost_frames": records.len() - session.frames_fused(),
+            "weak_frames": session.weak_frames(),
             "fps": fps,
             "upload_bytes_per_second": upload,
             "bytes_in": bytes_in,

@@ -340,6 +340,16 @@ impl Session {
         self.records.iter().filter(|r| r.fused()).count()
     }
 
+    /// Frames fused with a direction tracking left to the motion model.
+    pub fn weak_frames(&self) -> usize {
+        let weak = |r: &&FrameRecord| r.track.is_some_and(|t| t.weak_directions > 0);
+        self.records
+            .iter()
+            .filter(|r| r.fused())
+            .filter(weak)
+            .count()
+    }
+
     /// Seconds spent on frames so far.
     pub fn seconds(&self) -> f64 {
         self.records.iter().map(|r| r.ms).sum::<f64>() / 1e3
@@ -367,11 +377,7 @@ impl Session {
         if self.poses.tracking() {
             summary.insert("lost".into(), json!(self.poses.lost));
             summary.insert("lost_frames".into(), json!(self.poses.lost_frames));
-            let weak = self
-                .records
-                .iter()
-                .filter(|r| r.fused() && r.track.is_some_and(|t| t.weak_directions > 0));
-            summary.insert("weak_frames".into(), json!(weak.count()));
+            summary.insert("weak_frames".into(), json!(self.weak_frames()));
             summary.insert(
                 "track_ms".into(),
                 json!(self.poses.track_seconds * 1e3 / self.poses.tracked.max(1) as f64),
