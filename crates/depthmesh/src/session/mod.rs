@@ -342,12 +342,8 @@ impl Session {
 
     /// Frames fused with a direction tracking left to the motion model.
     pub fn weak_frames(&self) -> usize {
-        let weak = |r: &&FrameRecord| r.track.is_some_and(|t| t.weak_directions > 0);
-        self.records
-            .iter()
-            .filter(|r| r.fused())
-            .filter(weak)
-            .count()
+        let weak = |r: &FrameRecord| r.track.is_some_and(|t| t.weak_directions > 0);
+        self.records.iter().filter(|r| r.fused() && weak(r)).count()
     }
 
     /// Seconds spent on frames so far.

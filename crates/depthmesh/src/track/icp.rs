@@ -97,6 +97,12 @@ impl Equations {
         }
     }
 
+    /// RMS distance of the inliers from the model camera (metres): a
+    /// rotation by an angle moves them about this far per radian.
+    pub fn rms_range(&self) -> f64 {
+        (self.squared_range / self.inliers.max(1) as f64).sqrt()
+    }
+
     /// The system of [`Equations::conditioning`]: `S·A·S/n` and `S·b/n`,
     /// and the scale `S` (1/range for the rotations, 1 for the
     /// translations), so that `x = S·y` solves `A·x = -b` when `y` solves
@@ -106,7 +112,7 @@ impl Equations {
             return None;
         }
         let n = self.inliers as f64;
-        let range = (self.squared_range / n).sqrt().max(1e-6);
+        let range = self.rms_range().max(1e-6);
         let scale = [1.0 / range, 1.0 / range, 1.0 / range, 1.0, 1.0, 1.0];
         let mut a = self.matrix();
         for (r, row) in a.iter_mut().enumerate() {

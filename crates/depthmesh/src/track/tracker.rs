@@ -288,6 +288,9 @@ pub struct Tracked {
     /// How well the view constrains the pose (see
     /// [`super::icp::Equations::conditioning`]).
     pub conditioning: f64,
+    /// RMS distance of the matches at the finest level from the camera
+    /// (metres; see [`super::icp::Equations::rms_range`]).
+    pub range: f64,
     /// ICP iterations run, all levels and attempts.
     pub iterations: usize,
     /// Directions the view left weak, where the motion model weighed more
@@ -310,6 +313,7 @@ impl Tracked {
             inlier_fraction: 0.0,
             rms: 0.0,
             conditioning: 0.0,
+            range: 0.0,
             iterations: 0,
             weak_directions: 0,
             weak_axes: 0,
@@ -597,12 +601,9 @@ impl Tracker {
                 Some(_) => true,
                 None => {
                     let apart = near.pose.inverse().compose(&found.pose);
-                    let range = self.frame_range();
-                    apart
-                        .translation
-                        .length()
-                        .max(apart.rotation_angle() * range)
-                        > self.config.verify_distance
+                    let turned = f64::from(apart.rotation_angle()) * near.range;
+                    f64::from(apart.translation.length()).max(turned)
+                        > f64::from(self.config.verify_distance)
                         && self.confirmed(map, &found.pose) > self.confirmed(map, &near.pose)
                 }
             };
@@ -618,17 +619,6 @@ impl Tracker {
             iterations,
             ..chosen
         }
-    }
-
-    /// The RMS range of the prepared frame's points (metres): a rotation by
-    /// an angle moves them about this far per radian.
-    fn frame_range(&self) -> f32 {
-        let (sum, count) = self.frame.levels[LEVELS - 1]
-            .points
-            .iter()
-            .filter(|p| p.z > 0.0)
-            .fold((0.0, 0usize), |(s, n), p| (s + p.length_squared(), n + 1));
-        (sum / count.max(1) as f32).sqrt()
     }
 
     /// The share of the frame's points the map's view from `pose` confirms
@@ -863,9 +853,7 @@ impl Tracker {
                 relative = apply_motion(&relative, omega, t);
                 let rotation = omega.iter().map(|w| w * w).sum::<f64>().sqrt();
                 let translation = t.iter().map(|v| v * v).sum::<f64>().sqrt();
-                // A rotation moves points by about ω × their range.
-                let range = (eq.squared_range / eq.inliers.max(1) as f64).sqrt();
-                if translation + rotation * range < self.config.convergence {
+                if translation + rotation * eq.rms_range() < self.config.convergence {
                     break;
                 }
             }
@@ -938,6 +926,7 @@ impl Tracker {
             inlier_fraction,
             rms,
             conditioning: eq.conditioning(),
+            range: eq.rms_range(),
             iterations,
             weak_directions: weak.count,
             weak_axes: weak.axes,
