@@ -13,6 +13,7 @@ use crate::views::{self, Dashboard, MapperView};
 use anyhow::{bail, Context, Result};
 use clap::{Args, ValueEnum};
 use depthmesh::atomic::write_atomic;
+use depthmesh::dataset::FramesWriter;
 use depthmesh::eval::trajectory::trajectory_error;
 use depthmesh::mabdi::classify::Threshold;
 use depthmesh::mabdi::MabdiConfig;
@@ -99,6 +100,11 @@ pub struct SimulateArgs {
     pub track: bool,
     #[command(flatten)]
     pub planes: PlanesArgs,
+    /// Also write the frames the sensor took (depth in millimetres, the
+    /// true poses, the intrinsics) to `frames/` in --out, as a 7-Scenes
+    /// frames folder: `reconstruct`, or another tool, maps the same depth.
+    #[arg(long)]
+    pub save_frames: bool,
     /// Write a dashboard image per iteration and the element plot (mabdi, naive).
     #[arg(long)]
     pub dashboard: bool,
@@ -217,6 +223,18 @@ pub fn run_scene(args: &SimulateArgs, scene: &Scene, quiet: bool) -> Result<RunS
         })
         .transpose()?;
 
+    let mut saved = args
+        .save_frames
+        .then(|| FramesWriter::create(&files.path("frames"), &sensor.intrinsics))
+        .transpose()?;
+    if let Some(saved) = saved.as_mut() {
+        // A continued run saves the frames before it too: the noise depends
+        // only on the seed and the iteration, so they are the same frames.
+        for (i, truth) in poses.iter().enumerate().take(position) {
+            let frame = sensor.capture(scene, i as u32 + 1, truth);
+            saved.write(i + 1, &frame.depth, truth)?;
+        }
+    }
     let bar = progress::bar(poses.len() as u64, scene.name.as_str(), quiet);
     let mut sensor_seconds = 0.0;
     let mut stopped = None;
@@ -226,6 +244,9 @@ pub fn run_scene(args: &SimulateArgs, scene: &Scene, quiet: bool) -> Result<RunS
         let start = Instant::now();
         let frame = sensor.capture(scene, iteration, truth);
         sensor_seconds += start.elapsed().as_secs_f64();
+        if let Some(saved) = saved.as_mut() {
+            saved.write(i + 1, &frame.depth, truth)?;
+        }
         let outcome = session
             .push(&frame)
             .with_context(|| format!("iteration {iteration}"))?;

@@ -21,7 +21,7 @@
 
 mod bits;
 pub mod levels;
-mod png;
+pub(crate) mod png;
 mod rans;
 pub(crate) mod raw;
 pub mod rvl;

@@ -7,7 +7,7 @@ use crate::error::{Error, Result};
 const NAME: &str = "png";
 
 /// Appends `depth` as a PNG file to `out`.
-pub(super) fn encode(depth: &RawDepth, out: &mut Vec<u8>) {
+pub(crate) fn encode(depth: &RawDepth, out: &mut Vec<u8>) {
     let mut encoder = png::Encoder::new(&mut *out, depth.width(), depth.height());
     encoder.set_color(png::ColorType::Grayscale);
     encoder.set_depth(png::BitDepth::Sixteen);

@@ -9,12 +9,14 @@
 mod color;
 mod depth_png;
 mod frames_folder;
+mod frames_writer;
 mod intrinsics;
 #[cfg(test)]
 mod test_util;
 mod tum;
 
 pub use depth_png::{read_depth_png, read_depth_png_raw};
+pub use frames_writer::FramesWriter;
 pub use intrinsics::IntrinsicsSpec;
 
 use crate::camera::{Intrinsics, Pose};
