@@ -132,6 +132,12 @@ fn killed_and_resumed(
             "{file} differs after {kills} kills (tracking {track})"
         );
     }
+    // The counts over the records, kept as frames come, include those
+    // before the resume.
+    let (resumed, uninterrupted) = (common::summary(&run), common::summary(&reference));
+    for key in ["frames_fused", "lost_frames", "weak_frames"] {
+        assert_eq!(resumed.get(key), uninterrupted.get(key), "{key}");
+    }
     let stats = std::fs::read_to_string(run.join("stats.csv")).unwrap();
     assert_eq!(
         stats.lines().count(),

@@ -156,6 +156,25 @@ pub struct FrameOutcome<'a> {
     pub changed: Changed,
 }
 
+/// Frames of a session's records by what became of them.
+#[derive(Clone, Copy, Debug, Default)]
+struct Tally {
+    fused: usize,
+    /// Fused with a direction tracking left to the motion model.
+    weak: usize,
+}
+
+impl Tally {
+    fn add(&mut self, r: &FrameRecord) {
+        if r.fused() {
+            self.fused += 1;
+            if r.track.is_some_and(|t| t.weak_directions > 0) {
+                self.weak += 1;
+            }
+        }
+    }
+}
+
 /// One mapping run: frames in, a map and its records out.
 #[derive(Debug)]
 pub struct Session {
@@ -163,6 +182,9 @@ pub struct Session {
     backend: Backend,
     poses: PoseSource,
     records: Vec<FrameRecord>,
+    /// Counts over `records`, kept as they grow: a live view asks for them
+    /// after every frame.
+    tally: Tally,
     /// Triangles of an append-only mesh a viewer has been told of (see
     /// [`view`]); `None` while no viewer follows.
     view_seen: Option<usize>,
@@ -179,6 +201,7 @@ impl Session {
             backend,
             poses,
             records: Vec::new(),
+            tally: Tally::default(),
             view_seen: None,
         })
     }
@@ -232,6 +255,9 @@ impl Session {
             }
         }
         session.records = saved.records;
+        for r in &session.records {
+            session.tally.add(r);
+        }
         Ok(session)
     }
 
@@ -291,8 +317,10 @@ impl Session {
             total_vertices: stats.vertices,
             track: decided.track,
         });
+        let record = self.records.last().expect("just pushed");
+        self.tally.add(record);
         Ok(FrameOutcome {
-            record: self.records.last().expect("just pushed"),
+            record,
             event: decided.event,
             changed,
         })
@@ -337,13 +365,12 @@ impl Session {
 
     /// Frames fused into the map.
     pub fn frames_fused(&self) -> usize {
-        self.records.iter().filter(|r| r.fused()).count()
+        self.tally.fused
     }
 
     /// Frames fused with a direction tracking left to the motion model.
     pub fn weak_frames(&self) -> usize {
-        let weak = |r: &FrameRecord| r.track.is_some_and(|t| t.weak_directions > 0);
-        self.records.iter().filter(|r| r.fused() && weak(r)).count()
+        self.tally.weak
     }
 
     /// Seconds spent on frames so far.
