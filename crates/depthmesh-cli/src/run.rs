@@ -23,6 +23,10 @@ pub fn report_event(bar: &ProgressBar, frame: usize, event: Option<TrackEvent>) 
     bar.suspend(|| eprintln!("{line}"));
 }
 
+/// How the closing lines of `run` and `stream` name frames fused with a
+/// direction tracking left to the motion model (after their count).
+pub const WEAK_FRAMES: &str = "fused with a direction left to the motion model";
+
 /// The closing lines of a mapping run: frames, speed, map size, lost
 /// frames and where the files are; silent when `quiet`.
 pub fn print_summary(summary: &Map<String, Value>, out: &Path, quiet: bool) {
@@ -40,7 +44,7 @@ pub fn print_summary(summary: &Map<String, Value>, out: &Path, quiet: bool) {
     );
     if summary.get("tracking") == Some(&Value::Bool(true)) {
         line += &format!(
-            "; tracking lost {} time(s), {} frame(s) not fused ({:.0} % fused), {} fused with a direction left to the motion model",
+            "; tracking lost {} time(s), {} frame(s) not fused ({:.0} % fused), {} {WEAK_FRAMES}",
             get("lost"),
             get("lost_frames"),
             100.0 * get("fused_fraction"),

@@ -173,9 +173,10 @@ pub fn run(args: &StreamArgs, quiet: bool) -> Result<()> {
     if !quiet {
         let s = &result.summary;
         eprintln!(
-            "{} frames sent, {} mapped, {} dropped, {} lost, {} fused with a direction left to the motion model; {} triangles; latency p50 {} ms; wrote {}",
+            "{} frames sent, {} mapped, {} dropped, {} lost, {} {}; {} triangles; latency p50 {} ms; wrote {}",
             s["frames_sent"], s["frames_mapped"], s["frames_dropped"], s["frames_lost"],
-            s["frames_weak"], s["triangles"], s["latency_ms_p50"], out_path.display()
+            s["frames_weak"], crate::run::WEAK_FRAMES, s["triangles"], s["latency_ms_p50"],
+            out_path.display()
         );
     }
     Ok(())
