@@ -24,6 +24,7 @@ pub mod store;
 pub mod track;
 pub mod trajectory;
 pub mod tsdf;
+mod worker_slots;
 
 pub use camera::{Intrinsics, Pose};
 pub use error::{Error, Result};

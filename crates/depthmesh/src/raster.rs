@@ -32,6 +32,7 @@
 use crate::camera::{Intrinsics, Pose};
 use crate::image::DepthImage;
 use crate::mesh::Aabb;
+use crate::worker_slots::lock_own;
 use glam::Vec3;
 use rayon::prelude::*;
 use std::sync::{Mutex, PoisonError};
@@ -601,10 +602,8 @@ impl Rasterizer {
                 if !chunk_visible[chunk] {
                     return false;
                 }
-                // Each worker thread has a layer of its own, so the lock is
-                // only ever taken uncontended (once per chunk).
-                let slot = rayon::current_thread_index().unwrap_or(0) % layers.len();
-                let mut keys = layers[slot].lock().unwrap_or_else(PoisonError::into_inner);
+                // Each worker thread has a layer of its own (once per chunk).
+                let mut keys = lock_own(layers);
                 let first = (chunk * CHUNK_TRIANGLES) as u32;
                 vertices.draw_or_bin_chunk(tris, first, bins, &mut keys);
                 state

@@ -9,9 +9,10 @@ use crate::camera::{Intrinsics, Pose};
 use crate::image::DepthImage;
 use crate::mabdi::classify::PixelClass;
 use crate::mabdi::rtin::{self, Triangle};
+use crate::worker_slots::lock_own;
 use glam::Vec3;
 use rayon::prelude::*;
-use std::sync::{Mutex, PoisonError};
+use std::sync::Mutex;
 
 const NO_VERTEX: u32 = u32::MAX;
 
@@ -202,8 +203,7 @@ impl DepthMesher {
             .par_iter_mut()
             .enumerate()
             .for_each(|(i, out)| {
-                let slot = rayon::current_thread_index().unwrap_or(0) % scratch.len();
-                let mut tile = scratch[slot].lock().unwrap_or_else(PoisonError::into_inner);
+                let mut tile = lock_own(scratch);
                 let [x0, y0] = origin(i);
                 tile.mesh(x0, y0, w, h, inverse_row, bound, out);
             });
