@@ -82,9 +82,9 @@ pub struct TrackerConfig {
     /// a few millimetres a frame.
     pub motion_sigma: f64,
     /// A frame aligned against the model view with a conditioning below
-    /// this is aligned again against the view at the frame's resolution
-    /// (see [`TrackerConfig::model_halvings`]), where thin structures (a
-    /// table top's edge, a chair's legs) keep their normals, and the better
+    /// this is aligned again against the finer view (see
+    /// [`TrackerConfig::model_halvings`]), where thin structures (a table
+    /// top's edge, a chair's legs) keep their normals, and the better
     /// conditioned alignment is kept.
     pub refine_conditioning: f64,
     /// Lost when the frame moved more than this from the prediction (metres).
@@ -94,13 +94,9 @@ pub struct TrackerConfig {
     /// Predict the model view at the frame's resolution halved this many
     /// times: every level of the frame still associates with it, point to
     /// plane, and ray casting is the largest cost of tracking. A frame the
-    /// view cannot align, or leaves poorly conditioned (see
-    /// [`TrackerConfig::refine_conditioning`]), is tried again against a
-    /// view at the frame's own resolution: what pins a view with little
-    /// structure (a small box's edges, a chair's legs) keeps its edges and
-    /// normals there (a floor with one small box, orbited, drifted 53–105
-    /// cm against a view at half resolution, 3.4–3.5 cm against the full
-    /// one, on noise seeds 0–2). On
+    /// view cannot align is tried again against a view at twice that
+    /// resolution (one halving fewer) before it is judged lost: views with
+    /// little structure keep more of their edges and normals there. On
     /// 7-Scenes a quarter (2) tracks as accurately as half resolution (the
     /// same frame-to-frame consistency; ATE 5.26 against 5.38 cm) in a third
     /// of the ray-casting time. Never below [`MIN_MODEL_WIDTH`] pixels.
@@ -364,9 +360,8 @@ pub struct Tracker {
     intrinsics: Intrinsics,
     /// The camera model of the model view.
     model_intrinsics: Intrinsics,
-    /// The model view at the frame's resolution, which a frame is tried
-    /// against when the first cannot align it or leaves it poorly
-    /// conditioned (`None` when the model view is already at it).
+    /// The finer model view a frame is tried against when the first cannot
+    /// align it (`None` when the model view is already the finest).
     fallback_intrinsics: Option<Intrinsics>,
     filter: Option<Bilateral>,
     filtered: DepthImage,
@@ -393,20 +388,24 @@ impl Tracker {
     pub fn new(config: TrackerConfig, intrinsics: Intrinsics, start: Pose) -> Result<Self> {
         config.validate()?;
         intrinsics.validate()?;
-        let model_intrinsics = (0..config.model_halvings).fold(intrinsics, |k, _| {
-            if k.width / 2 >= MIN_MODEL_WIDTH {
-                half(&k)
-            } else {
-                k
-            }
-        });
+        let halved = |times: u32| {
+            (0..times).fold(intrinsics, |k, _| {
+                if k.width / 2 >= MIN_MODEL_WIDTH {
+                    half(&k)
+                } else {
+                    k
+                }
+            })
+        };
+        let model_intrinsics = halved(config.model_halvings);
+        let finer = halved(config.model_halvings.saturating_sub(1));
         Ok(Tracker {
             filter: config.bilateral.map(Bilateral::new).transpose()?,
             keyframes: Keyframes::new(config.relocalisation)?,
             map_features: MapFeatures::default(),
             registration: GlobalRegistration::default(),
             model_intrinsics,
-            fallback_intrinsics: (intrinsics != model_intrinsics).then_some(intrinsics),
+            fallback_intrinsics: (finer != model_intrinsics).then_some(finer),
             config,
             intrinsics,
             filtered: DepthImage::default(),
@@ -536,8 +535,8 @@ impl Tracker {
     }
 
     /// Tracking: the frame against the map's view from the last good pose,
-    /// then against its view at the frame's resolution if the first cannot
-    /// align it or leaves it poorly conditioned; the better of the two. Without a measured
+    /// then against a finer view if the first cannot align it or leaves
+    /// it poorly conditioned; the better of the two. Without a measured
     /// motion (the first frame, and the first after the camera was found
     /// again), against the view at the frame's own resolution alone, and
     /// weighed against the poses global registration proposes
@@ -1069,7 +1068,7 @@ pub(super) mod tests {
     }
 
     #[test]
-    fn a_frame_the_coarse_view_cannot_align_is_tried_against_the_frames_resolution() {
+    fn a_frame_the_coarse_view_cannot_align_is_tried_against_a_finer_one() {
         let room = scene(ROOM);
         let k = Intrinsics::from_vertical_fov(640, 480, 60.0);
         let at = |i: f32| {
@@ -1090,10 +1089,10 @@ pub(super) mod tests {
         assert_eq!(tracker.model_intrinsics().width, 160);
         // The first frame, without a measured motion, is aligned at the
         // frame's resolution anyway; the second, with one, against the
-        // quarter-resolution view first, blind here, as is the view at half
-        // the resolution.
+        // quarter-resolution view first, blind here, then against the view
+        // at half the resolution.
         assert_eq!(tracker.track(&frame(1.0), &map(0)).lost, None);
-        let t = tracker.track(&frame(2.0), &map(640));
+        let t = tracker.track(&frame(2.0), &map(320));
         assert_eq!(t.lost, None);
         let (dt, dr) = pose_error(&t.pose, &at(2.0));
         assert!(dt < 1e-3 && dr < 0.1, "error {:.2} mm, {dr:.3}°", dt * 1e3);
