@@ -30,7 +30,7 @@ impl Level {
     }
 
     /// Fills points and normals from `depth` and `intrinsics`.
-    fn compute_maps(&mut self, k: Intrinsics) {
+    fn compute_maps(&mut self, k: Intrinsics, step: usize) {
         self.intrinsics = Some(k);
         let (w, h) = self.size();
         self.points.resize(w * h, Vec3::ZERO);
@@ -54,27 +54,35 @@ impl Level {
         self.normals
             .par_chunks_mut(w)
             .enumerate()
-            .for_each(|(y, row)| normal_row(points, depth, w, h, y, row));
+            .for_each(|(y, row)| normal_row(points, depth, w, h, y, step, row));
     }
 }
 
-/// The normals of row `y` from central differences, where the four
-/// neighbours have depth on the same surface as the pixel (zero elsewhere,
-/// and along the image border).
-fn normal_row(points: &[Vec3], depth: &[f32], w: usize, h: usize, y: usize, row: &mut [Vec3]) {
+/// The normals of row `y` from central differences over `s` pixels, where
+/// the four neighbours have depth on the same surface as the pixel (zero
+/// elsewhere, and along the image border).
+fn normal_row(
+    points: &[Vec3],
+    depth: &[f32],
+    w: usize,
+    h: usize,
+    y: usize,
+    s: usize,
+    row: &mut [Vec3],
+) {
     row.fill(Vec3::ZERO);
-    if y == 0 || y + 1 >= h || w < 3 {
+    if y < s || y + s >= h || w < 2 * s + 1 {
         return;
     }
     // The three rows as slices: no index checks per pixel.
-    let (d_up, d_mid, d_down) = rows_around(depth, w, y);
-    let (p_up, p_mid, p_down) = rows_around(points, w, y);
-    for x in 1..w - 1 {
+    let (d_up, d_mid, d_down) = rows_around(depth, w, y, s);
+    let (p_up, p_mid, p_down) = rows_around(points, w, y, s);
+    for x in s..w - s {
         let z = d_mid[x];
-        let limit = EDGE_FRACTION * z;
+        let limit = EDGE_FRACTION * z * s as f32;
         let same = |d: f32| d > 0.0 && (d - z).abs() <= limit;
-        if z > 0.0 && same(d_mid[x - 1]) && same(d_mid[x + 1]) && same(d_up[x]) && same(d_down[x]) {
-            let dx = p_mid[x + 1] - p_mid[x - 1];
+        if z > 0.0 && same(d_mid[x - s]) && same(d_mid[x + s]) && same(d_up[x]) && same(d_down[x]) {
+            let dx = p_mid[x + s] - p_mid[x - s];
             let dy = p_down[x] - p_up[x];
             // Camera x right, y down, z forward: dy × dx points towards the camera.
             row[x] = dy.cross(dx).normalize_or_zero();
@@ -82,11 +90,13 @@ fn normal_row(points: &[Vec3], depth: &[f32], w: usize, h: usize, y: usize, row:
     }
 }
 
-/// Rows `y − 1`, `y` and `y + 1` of an image `w` pixels wide.
-fn rows_around<T>(data: &[T], w: usize, y: usize) -> (&[T], &[T], &[T]) {
-    let (up, rest) = data[(y - 1) * w..(y + 2) * w].split_at(w);
-    let (mid, down) = rest.split_at(w);
-    (up, mid, down)
+/// Rows `y − s`, `y` and `y + s` of an image `w` pixels wide.
+fn rows_around<T>(data: &[T], w: usize, y: usize, s: usize) -> (&[T], &[T], &[T]) {
+    (
+        &data[(y - s) * w..(y - s + 1) * w],
+        &data[y * w..(y + 1) * w],
+        &data[(y + s) * w..(y + s + 1) * w],
+    )
 }
 
 /// Halves a depth image: each output pixel averages the valid depths of its
@@ -144,6 +154,15 @@ pub struct Pyramid {
 impl Pyramid {
     /// Rebuilds the pyramid with `count` levels from `depth` taken with `k`.
     pub fn build(&mut self, depth: &DepthImage, k: &Intrinsics, count: usize) {
+        self.build_spaced(depth, k, count, 1);
+    }
+
+    /// [`Pyramid::build`] with level 0's normals from neighbours `step`
+    /// pixels apart (level `l`'s from `step / 2^l`, at least 1): the same
+    /// baseline on the surface at every level, so a view at a finer
+    /// resolution keeps its edges without normals that follow pixel-scale
+    /// noise.
+    pub fn build_spaced(&mut self, depth: &DepthImage, k: &Intrinsics, count: usize, step: usize) {
         self.levels.resize_with(count, Level::default);
         let mut k = *k;
         for l in 0..count {
@@ -159,7 +178,7 @@ impl Pyramid {
                     k = half(&k);
                 }
             }
-            level.compute_maps(k);
+            level.compute_maps(k, (step >> l).max(1));
         }
     }
 }
@@ -201,6 +220,21 @@ mod tests {
                 }
             }
             assert_eq!(checked, (w - 2) * (h - 2));
+        }
+    }
+
+    #[test]
+    fn spaced_normals_keep_the_surface_and_leave_a_wider_border() {
+        let k = Intrinsics::from_vertical_fov(160, 120, 60.0);
+        let mut pyramid = Pyramid::default();
+        pyramid.build_spaced(&tilted_plane(&k), &k, 3, 2);
+        let want = Vec3::new(0.5, 0.0, -1.0).normalize();
+        // Two pixels apart at the finest level, one at the coarser ones.
+        for (level, border) in pyramid.levels.iter().zip([2, 1, 1]) {
+            let (w, h) = level.size();
+            let normals = level.normals.iter().filter(|n| **n != Vec3::ZERO);
+            assert!(normals.clone().all(|n| n.dot(want) > 0.9999));
+            assert_eq!(normals.count(), (w - 2 * border) * (h - 2 * border));
         }
     }
 
