@@ -166,21 +166,10 @@ pub fn scene_frames_folder(dir: &Path, scene: &depthmesh::sim::Scene, poses: &[d
     use depthmesh::sim::{NoiseModel, SimulatedSensor};
     let k = depthmesh::Intrinsics::from_vertical_fov(160, 120, 60.0);
     let mut sensor = SimulatedSensor::new(k, 0.8, 4.0, NoiseModel::None, 0).unwrap();
-    std::fs::write(
-        dir.join("camera-intrinsics.txt"),
-        format!("{} 0 {}\n0 {} {}\n0 0 1\n", k.fx, k.cx, k.fy, k.cy),
-    )
-    .unwrap();
+    let mut writer = depthmesh::dataset::FramesWriter::create(dir, &k).unwrap();
     for (i, pose) in poses.iter().enumerate() {
         let frame = sensor.capture(scene, i as u32 + 1, pose);
-        let mm: Vec<u16> = frame
-            .depth
-            .data
-            .iter()
-            .map(|d| (d * 1000.0).round() as u16)
-            .collect();
-        let depth = dir.join(format!("frame-{i:06}.depth.png"));
-        write_depth_png(&depth, k.width, k.height, &mm);
+        writer.write(i, &frame.depth, pose).unwrap();
         let rgb: Vec<u8> = (0..k.height)
             .flat_map(|v| (0..k.width).map(move |u| (u, v)))
             .zip(&frame.depth.data)
@@ -191,21 +180,6 @@ pub fn scene_frames_folder(dir: &Path, scene: &depthmesh::sim::Scene, poses: &[d
             .collect();
         let colour = dir.join(format!("frame-{i:06}.color.png"));
         write_rgb_png(&colour, k.width, k.height, &rgb);
-        let r = pose.rotation;
-        let t = pose.translation;
-        let rows: Vec<String> = (0..3)
-            .map(|row| {
-                format!(
-                    "{} {} {} {}",
-                    r.col(0)[row],
-                    r.col(1)[row],
-                    r.col(2)[row],
-                    t[row]
-                )
-            })
-            .chain(std::iter::once("0 0 0 1".to_string()))
-            .collect();
-        std::fs::write(dir.join(format!("frame-{i:06}.pose.txt")), rows.join("\n")).unwrap();
     }
 }
 
