@@ -553,11 +553,11 @@ impl Tracker {
 
     /// Tracking: the frame against the map's view from the last good pose,
     /// then against its view at the frame's resolution if the first cannot
-    /// align it or leaves it poorly conditioned; the better of the two. Without a measured
-    /// motion (the first frame, and the first after the camera was found
-    /// again), against the view at the frame's own resolution alone, and
-    /// weighed against the poses global registration proposes
-    /// ([`Tracker::start_globally`]).
+    /// align it or leaves it poorly conditioned; the better of the two.
+    /// Without a measured motion (the first frame, and the first after the
+    /// camera was found again), against the view at the frame's own
+    /// resolution alone, and weighed against the poses global registration
+    /// proposes ([`Tracker::start_globally`]).
     fn follow(&mut self, map: &dyn Mapper) -> Tracked {
         let mut best: Option<Tracked> = None;
         let mut iterations = 0;
