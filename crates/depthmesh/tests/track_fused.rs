@@ -99,6 +99,7 @@ fn a_desk_seen_end_on_is_followed_without_sliding_along_the_view() {
         velocity: poses[65].inverse().compose(&poses[66]),
         lost_streak: 0,
         velocity_known: true,
+        fine_first: false,
         keyframe_codes: Vec::new(),
         keyframe_poses: Vec::new(),
     };

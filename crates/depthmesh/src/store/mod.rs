@@ -809,6 +809,7 @@ fn pose_state_json(p: &PoseState) -> Value {
             "velocity": records::pose_array(&t.velocity),
             "lost_streak": t.lost_streak,
             "velocity_known": t.velocity_known,
+            "fine_first": t.fine_first,
             "keyframe_codes": t.keyframe_codes,
             "keyframe_poses": t.keyframe_poses.iter().map(records::pose_array).collect::<Vec<_>>(),
         })),
@@ -835,6 +836,9 @@ fn pose_state_from(v: &Value) -> std::result::Result<PoseState, String> {
             velocity_known: t["velocity_known"]
                 .as_bool()
                 .ok_or("tracking: no velocity_known")?,
+            // Absent from sessions saved before the tracker kept it: those
+            // tried every frame against the coarse view first.
+            fine_first: t["fine_first"].as_bool().unwrap_or(false),
             keyframe_codes: t["keyframe_codes"]
                 .as_array()
                 .ok_or("tracking: no keyframe codes")?

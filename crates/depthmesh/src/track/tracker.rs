@@ -360,6 +360,9 @@ pub struct TrackerState {
     pub lost_streak: usize,
     /// Whether `velocity` was measured.
     pub velocity_known: bool,
+    /// Whether the next frame is tried against the frame-resolution view
+    /// before the coarse one.
+    pub fine_first: bool,
     /// Relocalisation keyframes: fern codes back to back.
     pub keyframe_codes: Vec<u8>,
     /// Their poses.
@@ -391,6 +394,11 @@ pub struct Tracker {
     /// loss): without it, ICP starts from no motion and may need to travel
     /// far, so the coarsest level gets more iterations.
     velocity_known: bool,
+    /// The last frame followed was weak even against the frame-resolution
+    /// view: the next is aligned against that view alone (the coarse one
+    /// only if it cannot align it), which saves the coarse try a weak scene
+    /// fails frame after frame.
+    fine_first: bool,
     keyframes: Keyframes,
     /// The map's surface seen from the keyframes, described for global
     /// registration; made when first needed, grown as keyframes are learnt.
@@ -426,6 +434,7 @@ impl Tracker {
             velocity: Pose::IDENTITY,
             lost_streak: 0,
             velocity_known: false,
+            fine_first: false,
         })
     }
 
@@ -438,6 +447,7 @@ impl Tracker {
             velocity: self.velocity,
             lost_streak: self.lost_streak,
             velocity_known: self.velocity_known,
+            fine_first: self.fine_first,
             keyframe_codes: codes.to_vec(),
             keyframe_poses: poses.to_vec(),
         }
@@ -453,6 +463,7 @@ impl Tracker {
         t.velocity = state.velocity;
         t.lost_streak = state.lost_streak;
         t.velocity_known = state.velocity_known;
+        t.fine_first = state.fine_first;
         t.keyframes
             .restore(state.keyframe_codes, state.keyframe_poses)?;
         Ok(t)
@@ -554,6 +565,9 @@ impl Tracker {
     /// Tracking: the frame against the map's view from the last good pose,
     /// then against its view at the frame's resolution if the first cannot
     /// align it or leaves it poorly conditioned; the better of the two.
+    /// Once a frame is poorly conditioned in both, the next ones go to the
+    /// frame-resolution view alone (the coarse one only if that cannot
+    /// align them) until one is well conditioned there.
     /// Without a measured motion (the first frame, and the first after the
     /// camera was found again), against the view at the frame's own
     /// resolution alone, and weighed against the poses global registration
@@ -568,14 +582,16 @@ impl Tracker {
         // and half resolution views, within a millimetre against the full
         // one. It is one frame in a run or after a loss, so the larger ray
         // cast costs little.
-        let views = if self.velocity_known {
-            [
-                Some((self.model_intrinsics, 1)),
-                self.fallback_intrinsics.map(|k| (k, FINE_VIEW_NORMAL_STEP)),
-            ]
-        } else {
-            [Some((self.intrinsics, 1)), None]
+        let coarse = Some((self.model_intrinsics, 1));
+        let fine = self.fallback_intrinsics.map(|k| (k, FINE_VIEW_NORMAL_STEP));
+        let fine_first = self.velocity_known && self.fine_first && fine.is_some();
+        let views = match (self.velocity_known, fine_first) {
+            (true, false) => [coarse, fine],
+            (true, true) => [fine, coarse],
+            (false, _) => [Some((self.intrinsics, 1)), None],
         };
+        // Whether the fine view was tried and left the frame weak too.
+        let mut fine_weak = false;
         for (k, step) in views.into_iter().flatten() {
             let model = map.render_depth(&k, &self.last_good);
             if !self.model_view_spaced(&model, k, step) {
@@ -589,11 +605,20 @@ impl Tracker {
             if better {
                 best = Some(t);
             }
-            if t.lost.is_none() && t.conditioning >= self.config.refine_conditioning {
+            let good = t.lost.is_none() && t.conditioning >= self.config.refine_conditioning;
+            fine_weak |= k != self.model_intrinsics && !good;
+            // After a weak frame the coarse view is tried only if the fine
+            // one cannot align the frame: where every frame is weak (the
+            // table, a floor with a box, the chairs, the open space) the
+            // fine view's pose was the one kept on every frame, and
+            // skipping the coarse try left their trajectories unchanged to
+            // the last digit.
+            if good || (fine_first && t.lost.is_none()) {
                 break;
             }
         }
         let mut result = best.unwrap_or(Tracked::empty(self.last_good));
+        self.fine_first = self.velocity_known && fine_weak;
         result.iterations = iterations;
         if !self.velocity_known {
             result = self.start_globally(map, result);
@@ -1124,6 +1149,86 @@ pub(super) mod tests {
         assert_eq!(tracker.last_good(), good);
     }
 
+    /// A map that notes the width of every view rendered from it.
+    struct CountingMap<'a> {
+        map: SceneMap<'a>,
+        widths: std::cell::RefCell<Vec<u32>>,
+    }
+
+    impl Mapper for CountingMap<'_> {
+        fn name(&self) -> &'static str {
+            "counting"
+        }
+        fn integrate(
+            &mut self,
+            frame: &crate::image::Frame,
+            pose: &Pose,
+        ) -> Result<crate::map::IntegrateReport> {
+            self.map.integrate(frame, pose)
+        }
+        fn render_depth(&self, k: &Intrinsics, pose: &Pose) -> DepthImage {
+            self.widths.borrow_mut().push(k.width);
+            self.map.render_depth(k, pose)
+        }
+        fn mesh(&mut self) -> &crate::mesh::Mesh {
+            self.map.mesh()
+        }
+        fn stats(&self) -> crate::map::MapStats {
+            self.map.stats()
+        }
+    }
+
+    /// The widths of the views rendered to track each of `poses` after
+    /// the first (given), the tracker restored from its saved state before
+    /// the last.
+    fn views_rendered(scene: &Scene, poses: &[Pose]) -> Vec<Vec<u32>> {
+        let k = Intrinsics::from_vertical_fov(640, 480, 60.0);
+        let mut sensor = SimulatedSensor::new(k, 0.4, 6.0, NoiseModel::None, 1).unwrap();
+        let map = CountingMap {
+            map: SceneMap {
+                scene,
+                blind_below: 0,
+                mesh: Default::default(),
+            },
+            widths: Default::default(),
+        };
+        let mut tracker = Tracker::new(TrackerConfig::default(), k, poses[0]).unwrap();
+        let mut views = Vec::new();
+        for (i, pose) in poses.iter().enumerate().skip(1) {
+            if i == poses.len() - 1 {
+                tracker = Tracker::restore(TrackerConfig::default(), k, tracker.state()).unwrap();
+            }
+            let t = tracker.track(&sensor.capture(scene, 1, pose).depth, &map);
+            assert_eq!(t.lost, None, "frame {i}");
+            views.push(map.widths.take());
+        }
+        views
+    }
+
+    #[test]
+    fn after_a_frame_weak_in_both_views_the_next_is_aligned_against_the_fine_view_alone() {
+        // Sliding along a wall: weak at every resolution.
+        let (wall, along_wall) = sliding_along_a_wall();
+        let views = views_rendered(&wall, &along_wall);
+        // The first frame (no measured motion) is aligned at the frame's
+        // resolution; the second tries the coarse view, then the fine one;
+        // from then on the fine one alone, also after a restore.
+        assert_eq!(views[1], [160, 640], "{views:?}");
+        assert_eq!(views[2..], [[640], [640]], "{views:?}");
+        // Around the room every frame is well conditioned in the coarse
+        // view, which is all that is rendered.
+        let room = scene(ROOM);
+        let around: Vec<Pose> = (0..5)
+            .map(|i| {
+                let a = (5.0 * i as f32).to_radians();
+                let eye = Vec3::new(2.0 * a.cos(), 1.3, 2.0 * a.sin());
+                Pose::look_at(eye, Vec3::new(0.0, 0.4, 0.0), Vec3::Y)
+            })
+            .collect();
+        let views = views_rendered(&room, &around);
+        assert!(views[1..].iter().all(|v| v == &[160]), "{views:?}");
+    }
+
     #[test]
     fn a_camera_lost_while_moving_is_found_again_where_its_motion_led() {
         let room = scene(ROOM);
@@ -1161,16 +1266,22 @@ pub(super) mod tests {
         }
     }
 
-    #[test]
-    fn a_single_wall_is_tracked_with_its_weak_directions_from_the_motion_model() {
+    /// A single wall, and five poses sliding along it 2 cm a frame, 2 m in
+    /// front of it.
+    fn sliding_along_a_wall() -> (Scene, Vec<Pose>) {
         let wall = scene("[[object]]\nshape = \"box\"\nsize = [20.0, 20.0, 0.1]\n");
-        // Sliding along the wall, 2 m in front of it.
-        let poses: Vec<Pose> = (0..5)
+        let poses = (0..5)
             .map(|i| {
                 let eye = Vec3::new(0.02 * i as f32, 0.0, 2.0);
                 Pose::look_at(eye, eye - Vec3::Z, Vec3::Y)
             })
             .collect();
+        (wall, poses)
+    }
+
+    #[test]
+    fn a_single_wall_is_tracked_with_its_weak_directions_from_the_motion_model() {
+        let (wall, poses) = sliding_along_a_wall();
         for t in track_sequence(&wall, &poses) {
             // Not lost: nothing contradicts the map.
             assert_eq!(t.lost, None);
