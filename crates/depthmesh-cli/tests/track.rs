@@ -255,3 +255,66 @@ fn eval_names_what_it_cannot_read() {
     );
     std::fs::remove_dir_all(dir).unwrap();
 }
+
+/// `eval relocalise` on the simulated room: mapped from a circle of 30
+/// views with their true poses, queried from six views between them, whose
+/// poses in the folder are 7 cm off the truth along x (a reference that
+/// drifted, as 7-Scenes' does by centimetres). Each query is found at its
+/// true pose: wrong against the folder's poses, right against the folder's
+/// poses refined against the map, which come back to the truth.
+#[test]
+fn eval_relocalise_judges_against_the_reference_refined_against_the_map() {
+    use depthmesh::sim::{NoiseModel, Scene, SceneOptions, SimulatedSensor};
+    use depthmesh::Pose;
+    use glam::Vec3;
+    let dir = scratch("eval-relocalise");
+    let room = std::path::Path::new("../../scenes/room.toml");
+    let scene = Scene::load(room, &SceneOptions::default()).unwrap();
+    let around = |degrees: f32, radius: f32, height: f32| {
+        let a = degrees.to_radians();
+        let eye = Vec3::new(radius * a.cos(), height, radius * a.sin());
+        Pose::look_at(eye, Vec3::new(0.0, 0.4, 0.0), Vec3::Y)
+    };
+    let k = depthmesh::Intrinsics::from_vertical_fov(320, 240, 60.0);
+    let mut sensor = SimulatedSensor::new(k, 0.4, 6.0, NoiseModel::None, 0).unwrap();
+    let mut writer = depthmesh::dataset::FramesWriter::create(&dir, &k).unwrap();
+    let drift = Vec3::new(0.07, 0.0, 0.0);
+    for i in 0..36 {
+        let (pose, written) = match i < 30 {
+            true => (
+                around(12.0 * i as f32, 2.0, 1.3),
+                around(12.0 * i as f32, 2.0, 1.3),
+            ),
+            false => {
+                let truth = around(60.0 * (i - 30) as f32 + 6.0, 1.9, 1.35);
+                (
+                    truth,
+                    Pose::from_quat(truth.quat(), truth.translation + drift),
+                )
+            }
+        };
+        let frame = sensor.capture(&scene, 1, &pose);
+        writer.write(i, &frame.depth, &written).unwrap();
+    }
+    let out = depthmesh(&[
+        "eval",
+        "relocalise",
+        dir.to_str().unwrap(),
+        "--map-frames",
+        "0..30",
+        "--query-frames",
+        "30..36",
+    ]);
+    ok(&out);
+    let e: Value = serde_json::from_slice(&out.stdout).unwrap();
+    assert_eq!(e["queries"], 6, "{e}");
+    assert_eq!(e["accepted"], 6, "{e}");
+    // Off the folder's poses by the drift...
+    assert_eq!(e["wrongly_accepted"], 6, "{e}");
+    // ...and at the map's own pose near them, which the refinement finds.
+    assert_eq!(e["references_refined"], 6, "{e}");
+    let moved = e["refinement_max_cm"].as_f64().unwrap();
+    assert!((6.0..8.0).contains(&moved), "{e}");
+    assert_eq!(e["wrongly_accepted_refined"], 0, "{e}");
+    std::fs::remove_dir_all(dir).unwrap();
+}

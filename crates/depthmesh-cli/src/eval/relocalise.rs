@@ -14,15 +14,27 @@
 //! at the pose found than at the reference pose are counted apart (the
 //! reference poses are estimates too, and a map built with them can
 //! disagree with them by centimetres).
+//!
+//! So the figures are also given against a second reference: the query
+//! frame's reference pose refined by ICP against the map, from that pose
+//! (tracked as a frame that did not move from it). 7-Scenes' poses are
+//! KinectFusion's own tracking, whose errors Brachmann et al. (ICCV 2021,
+//! "On the limits of pseudo ground truth in visual camera
+//! re-localisation") showed to be as large as the 5 cm being judged; the
+//! refined pose is the one the map itself would agree with near the
+//! reference. A pose found elsewhere (another place that looks alike) stays
+//! far from it. How far the refinement moved the references is reported;
+//! a reference ICP cannot align against the map, or whose refinement
+//! leaves the map explaining less of the frame, is kept as it is.
 
 use anyhow::{bail, Context, Result};
 use clap::Args;
 use depthmesh::dataset::{Dataset, DatasetOptions, FrameRange};
 use depthmesh::map::Mapper;
-use depthmesh::track::{Tracker, TrackerConfig};
+use depthmesh::track::{Tracker, TrackerConfig, TrackerState};
 use depthmesh::tsdf::mapper::TsdfMapper;
 use depthmesh::tsdf::TsdfConfig;
-use depthmesh::{DepthImage, Pose};
+use depthmesh::{DepthImage, Intrinsics, Pose};
 use serde_json::json;
 use std::path::PathBuf;
 use std::time::Instant;
@@ -102,6 +114,10 @@ pub fn run(args: &RelocaliseArgs) -> Result<()> {
     let describe_ms = start.elapsed().as_secs_f64() * 1e3;
     let (mut explained, mut found, mut accepted, mut wrong) = (0usize, 0usize, 0usize, 0usize);
     let mut wrong_fits_better = 0usize;
+    // Against the references refined against the map.
+    let (mut refined, mut found_refined, mut wrong_refined) = (0usize, 0usize, 0usize);
+    let mut explained_refined = 0usize;
+    let (mut moved_metres, mut moved_degrees) = (0.0f32, 0.0f32);
     let mut seconds = Vec::with_capacity(queries.len());
     for i in 0..queries.len() {
         let frame = queries.frame(i)?;
@@ -112,18 +128,39 @@ pub fn run(args: &RelocaliseArgs) -> Result<()> {
         let t = tracker.relocalise(&frame.depth, &map);
         seconds.push(start.elapsed().as_secs_f64());
         let d = reference.inverse().compose(&t.pose);
-        let correct = d.translation.length() <= CORRECT_METRES
-            && d.rotation_angle().to_degrees() <= CORRECT_DEGREES;
+        let correct = within(&reference, &t.pose);
         let reference_fit = explained_fraction(&frame.depth, &map.render_depth(&k, &reference));
+        // A refinement that leaves the map explaining less of the frame is
+        // not the map's pose near the reference.
+        let refinement = refine(&frame.depth, &map, k, &reference)?
+            .map(|r| {
+                (
+                    r,
+                    explained_fraction(&frame.depth, &map.render_depth(&k, &r)),
+                )
+            })
+            .filter(|&(_, fit)| fit >= reference_fit);
+        let (map_reference, refined_fit) = refinement.unwrap_or((reference, reference_fit));
+        if refinement.is_some() {
+            let m = reference.inverse().compose(&map_reference);
+            refined += 1;
+            moved_metres = moved_metres.max(m.translation.length());
+            moved_degrees = moved_degrees.max(m.rotation_angle().to_degrees());
+        }
+        explained_refined += usize::from(refined_fit >= 0.5);
+        let correct_refined = within(&map_reference, &t.pose);
+        let dr = map_reference.inverse().compose(&t.pose);
         let can_explain = reference_fit >= 0.5;
         explained += usize::from(can_explain);
         if args.verbose {
             eprintln!(
-                "frame {}: {}, {:.1} cm and {:.1}° from the reference, inliers {:.2}, {} by the map, {:.0} ms",
+                "frame {}: {}, {:.1} cm and {:.1}° from the reference ({:.1} cm and {:.1}° from it refined against the map), inliers {:.2}, {} by the map, {:.0} ms",
                 frame.index,
                 if t.lost.is_none() { "accepted" } else { "lost" },
                 d.translation.length() * 100.0,
                 d.rotation_angle().to_degrees(),
+                dr.translation.length() * 100.0,
+                dr.rotation_angle().to_degrees(),
                 t.inlier_fraction,
                 if can_explain { "explained" } else { "not explained" },
                 seconds[seconds.len() - 1] * 1e3,
@@ -133,6 +170,8 @@ pub fn run(args: &RelocaliseArgs) -> Result<()> {
             accepted += 1;
             found += usize::from(correct && can_explain);
             wrong += usize::from(!correct);
+            found_refined += usize::from(correct_refined && refined_fit >= 0.5);
+            wrong_refined += usize::from(!correct_refined);
             // The reference poses are estimates too (KinectFusion's, on
             // 7-Scenes): a pose off the reference that the map explains
             // better than the reference is counted wrong, and also here.
@@ -159,12 +198,58 @@ pub fn run(args: &RelocaliseArgs) -> Result<()> {
             "wrongly_accepted": wrong,
             "wrong_share": wrong as f64 / n as f64,
             "wrong_explained_better_than_reference": wrong_fits_better,
+            "references_refined": refined,
+            "refinement_max_cm": moved_metres * 100.0,
+            "refinement_max_degrees": moved_degrees,
+            "explained_refined": explained_refined,
+            "found_refined": found_refined,
+            "found_share_refined": found_refined as f64 / explained_refined.max(1) as f64,
+            "wrongly_accepted_refined": wrong_refined,
+            "wrong_share_refined": wrong_refined as f64 / n as f64,
             "ms_per_attempt": mean_ms,
             "ms_max": max_ms,
             "ms_describe_map": describe_ms,
         })
     );
     Ok(())
+}
+
+/// Whether `pose` is within 5 cm and 5° of `reference`.
+fn within(reference: &Pose, pose: &Pose) -> bool {
+    let d = reference.inverse().compose(pose);
+    d.translation.length() <= CORRECT_METRES && d.rotation_angle().to_degrees() <= CORRECT_DEGREES
+}
+
+/// `reference` refined by ICP against `map`: `depth` (seen with `k`)
+/// tracked as a frame that did not move from it, by a tracker of its own;
+/// `None` when the map's view from it cannot align the frame. A tracker
+/// loses a frame of which fewer than a quarter of the points match the
+/// map; here one in ten will do: a reference frame turned towards parts
+/// the map lacks matches few of its points wherever it is (23–25 % on six
+/// kitchen frames whose ICP was well conditioned), and the caller checks
+/// that the map explains the frame at least as well at the pose found.
+fn refine(
+    depth: &DepthImage,
+    map: &TsdfMapper,
+    k: Intrinsics,
+    reference: &Pose,
+) -> Result<Option<Pose>> {
+    let state = TrackerState {
+        last_good: *reference,
+        velocity: Pose::IDENTITY,
+        lost_streak: 0,
+        velocity_known: true,
+        fine_first: false,
+        keyframe_codes: Vec::new(),
+        keyframe_poses: Vec::new(),
+    };
+    let config = TrackerConfig {
+        min_inlier_fraction: 0.1,
+        ..TrackerConfig::default()
+    };
+    let mut tracker = Tracker::restore(config, k, state)?;
+    let t = tracker.track(depth, map);
+    Ok(t.lost.is_none().then_some(t.pose))
 }
 
 /// The fraction of `frame`'s measured pixels whose depth is within
