@@ -94,15 +94,7 @@ fn a_desk_seen_end_on_is_followed_without_sliding_along_the_view() {
     for (i, pose) in poses.iter().enumerate().take(66) {
         map.integrate(&frame(&mut sensor, i), pose).unwrap();
     }
-    let state = TrackerState {
-        last_good: poses[66],
-        velocity: poses[65].inverse().compose(&poses[66]),
-        lost_streak: 0,
-        velocity_known: true,
-        fine_first: false,
-        keyframe_codes: Vec::new(),
-        keyframe_poses: Vec::new(),
-    };
+    let state = TrackerState::moving(poses[66], poses[65].inverse().compose(&poses[66]));
     map.integrate(&frame(&mut sensor, 66), &poses[66]).unwrap();
     let mut tracker = Tracker::restore(TrackerConfig::default(), k, state).unwrap();
     for (i, pose) in poses.iter().enumerate().take(75).skip(67) {

@@ -234,15 +234,7 @@ fn refine(
     k: Intrinsics,
     reference: &Pose,
 ) -> Result<Option<Pose>> {
-    let state = TrackerState {
-        last_good: *reference,
-        velocity: Pose::IDENTITY,
-        lost_streak: 0,
-        velocity_known: true,
-        fine_first: false,
-        keyframe_codes: Vec::new(),
-        keyframe_poses: Vec::new(),
-    };
+    let state = TrackerState::moving(*reference, Pose::IDENTITY);
     let config = TrackerConfig {
         min_inlier_fraction: 0.1,
         ..TrackerConfig::default()

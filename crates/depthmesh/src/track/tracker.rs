@@ -369,6 +369,22 @@ pub struct TrackerState {
     pub keyframe_poses: Vec<Pose>,
 }
 
+impl TrackerState {
+    /// A tracker's state at `last_good`, moving by the measured `velocity`
+    /// (camera-to-camera, per frame), with no keyframes.
+    pub fn moving(last_good: Pose, velocity: Pose) -> Self {
+        TrackerState {
+            last_good,
+            velocity,
+            lost_streak: 0,
+            velocity_known: true,
+            fine_first: false,
+            keyframe_codes: Vec::new(),
+            keyframe_poses: Vec::new(),
+        }
+    }
+}
+
 /// Frame-to-model ICP tracker with a constant-velocity motion model and
 /// keyframe relocalisation.
 #[derive(Debug)]
@@ -590,8 +606,10 @@ impl Tracker {
             (true, true) => [fine, coarse],
             (false, _) => [Some((self.intrinsics, 1)), None],
         };
-        // Whether the fine view was tried and left the frame weak too.
-        let mut fine_weak = false;
+        // Whether the fine view was tried and left the frame weak too, and
+        // whether the coarse one aligned it well (after the fine one could
+        // not): then the next frame goes back to the coarse view first.
+        let (mut fine_weak, mut coarse_good) = (false, false);
         for (k, step) in views.into_iter().flatten() {
             let model = map.render_depth(&k, &self.last_good);
             if !self.model_view_spaced(&model, k, step) {
@@ -606,7 +624,9 @@ impl Tracker {
                 best = Some(t);
             }
             let good = t.lost.is_none() && t.conditioning >= self.config.refine_conditioning;
-            fine_weak |= k != self.model_intrinsics && !good;
+            let is_coarse = k == self.model_intrinsics;
+            fine_weak |= !is_coarse && !good;
+            coarse_good |= is_coarse && good;
             // After a weak frame the coarse view is tried only if the fine
             // one cannot align the frame: where every frame is weak (the
             // table, a floor with a box, the chairs, the open space) the
@@ -618,7 +638,7 @@ impl Tracker {
             }
         }
         let mut result = best.unwrap_or(Tracked::empty(self.last_good));
-        self.fine_first = self.velocity_known && fine_weak;
+        self.fine_first = self.velocity_known && fine_weak && !coarse_good;
         result.iterations = iterations;
         if !self.velocity_known {
             result = self.start_globally(map, result);
