@@ -106,6 +106,7 @@ pub fn run(args: &DemoArgs, quiet: bool) -> Result<()> {
             no_settle: false,
             no_smooth: false,
             track: false,
+            track_against: simulate::TrackModel::Map,
             save_frames: false,
             planes: PlanesArgs::default(),
             dashboard: true,

@@ -22,7 +22,7 @@ use depthmesh::session::run_files::RunFiles;
 use depthmesh::session::{
     Backend, MapConfig, PlanesSettings, Session, SessionConfig, TsdfSettings,
 };
-use depthmesh::sim::{NoiseModel, PathSpec, Scene, SceneOptions, SimulatedSensor};
+use depthmesh::sim::{NoiseModel, PathSpec, Scene, SceneModel, SceneOptions, SimulatedSensor};
 use depthmesh::track::TrackerConfig;
 use depthmesh::trajectory::format_tum;
 use depthmesh::tsdf::TsdfConfig;
@@ -46,6 +46,17 @@ pub enum MapKind {
     Tsdf,
     /// Voxel planes: per-voxel statistics, a plane patch per planar 2×2×2 window.
     Planes,
+}
+
+/// What `simulate --track` aligns frames against.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, ValueEnum)]
+pub enum TrackModel {
+    /// The map fused so far, as every other command tracks.
+    Map,
+    /// The scene itself, rendered without noise (a perfect map); the map is
+    /// still fused, from the poses found. The tracker's own error, without
+    /// what the map's rendition of the scene adds.
+    Scene,
 }
 
 /// Flags of `depthmesh simulate`.
@@ -98,6 +109,9 @@ pub struct SimulateArgs {
     /// `groundtruth.txt` the true poses, and the summary their error.
     #[arg(long)]
     pub track: bool,
+    /// What --track aligns frames against.
+    #[arg(long, value_enum, default_value_t = TrackModel::Map)]
+    pub track_against: TrackModel,
     #[command(flatten)]
     pub planes: PlanesArgs,
     /// Also write the frames the sensor took (depth in millimetres, the
@@ -180,6 +194,9 @@ pub fn run_scene(args: &SimulateArgs, scene: &Scene, quiet: bool) -> Result<RunS
     args.export.check()?;
     args.bounded.check(args.map == MapKind::Tsdf)?;
     args.bounded.check_export(&args.export)?;
+    if args.track_against == TrackModel::Scene && !args.track {
+        bail!("--track-against scene chooses what --track aligns frames against: add --track");
+    }
     if args.dashboard && matches!(args.map, MapKind::Tsdf | MapKind::Planes) {
         bail!("--dashboard shows mesh addition: use it with --map mabdi or --map naive");
     }
@@ -207,6 +224,9 @@ pub fn run_scene(args: &SimulateArgs, scene: &Scene, quiet: bool) -> Result<RunS
         }))
     };
     let (mut session, mut store, position) = args.store.open(config, source, poses.len())?;
+    if args.track_against == TrackModel::Scene {
+        session.track_against_scene(SceneModel::new(scene.clone(), sensor.near, sensor.far)?);
+    }
     args.bounded.note_reach(&session);
     let out = OutDir::prepare(&args.out, args.force || args.store.resume)?;
     let mut files = RunFiles::create(&args.out, &session)?;
@@ -289,6 +309,11 @@ pub fn run_scene(args: &SimulateArgs, scene: &Scene, quiet: bool) -> Result<RunS
         summary.insert("stopped_at_iteration".into(), json!(iteration));
     }
     if args.track {
+        let against = match args.track_against {
+            TrackModel::Map => "map",
+            TrackModel::Scene => "scene",
+        };
+        summary.insert("tracked_against".into(), against.into());
         // The true poses beside the estimated ones, and how far apart they
         // are over every frame (a lost frame counts at its last good pose).
         let truth: Vec<(f64, Pose)> = (1..).map(f64::from).zip(poses.iter().copied()).collect();

@@ -76,6 +76,49 @@ fn saved_simulated_frames_are_tracked_as_the_simulator_tracked_them() {
     std::fs::remove_dir_all(dir).unwrap();
 }
 
+#[test]
+fn tracking_against_the_scene_itself_leaves_only_the_trackers_error() {
+    let dir = scratch("track-scene-model");
+    let (map, scene) = (dir.join("map"), dir.join("scene"));
+    track_room_line(&map, 20, &[]);
+    track_room_line(&scene, 20, &["--track-against", "scene"]);
+    let (m, s) = (summary(&map), summary(&scene));
+    assert_eq!(m["tracked_against"], "map", "{m}");
+    assert_eq!(s["tracked_against"], "scene", "{s}");
+    assert_eq!(s["lost"], 0, "{s}");
+    // The map is fused either way, from the poses found.
+    assert_eq!(s["frames_fused"], 20, "{s}");
+    let (against_map, against_scene) = (
+        m["ate_rmse_cm"].as_f64().unwrap(),
+        s["ate_rmse_cm"].as_f64().unwrap(),
+    );
+    // Measured: 0.015 cm against the scene, 0.33 against the 2 cm map.
+    assert!(against_scene < 0.05, "{against_scene} cm against the scene");
+    assert!(
+        against_scene < 0.5 * against_map,
+        "{against_scene} against {against_map} cm"
+    );
+    // Without --track there is nothing to align.
+    let out = dir.join("untracked");
+    assert_fails_with(
+        &depthmesh(&[
+            "simulate",
+            "--scene",
+            "../../scenes/room.toml",
+            "--track-against",
+            "scene",
+            "--iterations",
+            "2",
+            "--quiet",
+            "--out",
+            out.to_str().unwrap(),
+        ]),
+        &["--track-against scene", "--track"],
+    );
+    assert!(!out.exists());
+    std::fs::remove_dir_all(dir).unwrap();
+}
+
 /// Tracks `iterations` frames of the room along a line with Kinect noise
 /// (2 cm TSDF) into `out`, with `extra` flags.
 fn track_room_line(out: &std::path::Path, iterations: u32, extra: &[&str]) {

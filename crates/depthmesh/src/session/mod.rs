@@ -25,8 +25,9 @@ pub use poses::{PoseState, TrackEvent, TrackRecord};
 use crate::camera::{Intrinsics, Pose};
 use crate::error::{Error, Result};
 use crate::image::Frame;
-use crate::map::IntegrateReport;
+use crate::map::{IntegrateReport, Mapper};
 use crate::mesh::Mesh;
+use crate::sim::SceneModel;
 use crate::track::TrackerConfig;
 use glam::IVec3;
 use poses::PoseSource;
@@ -188,6 +189,9 @@ pub struct Session {
     /// Triangles of an append-only mesh a viewer has been told of (see
     /// [`view`]); `None` while no viewer follows.
     view_seen: Option<usize>,
+    /// What tracking aligns frames against instead of the map (see
+    /// [`Session::track_against_scene`]).
+    scene_model: Option<SceneModel>,
 }
 
 impl Session {
@@ -203,7 +207,15 @@ impl Session {
             records: Vec::new(),
             tally: Tally::default(),
             view_seen: None,
+            scene_model: None,
         })
+    }
+
+    /// Tracks frames against `model`, the simulated scene itself, instead
+    /// of the map built so far (which still fuses them): the tracker's error
+    /// without the error the map's rendition of the scene adds.
+    pub fn track_against_scene(&mut self, model: SceneModel) {
+        self.scene_model = Some(model);
     }
 
     /// A session that continues one saved after its first records: the
@@ -294,7 +306,16 @@ impl Session {
         }
         let start = Instant::now();
         // 1. Where the camera was: given, or aligned against the map.
-        let decided = self.poses.decide(frame, self.backend.mapper())?;
+        let decided = match self.scene_model.as_mut() {
+            Some(model) => {
+                let decided = self.poses.decide(frame, model)?;
+                // Only the iteration: which of a dynamic scene's objects the
+                // next frames see.
+                model.integrate(frame, &decided.estimate)?;
+                decided
+            }
+            None => self.poses.decide(frame, self.backend.mapper())?,
+        };
         // 2. Fuse, unless tracking lost the frame.
         let report = match decided.pose {
             Some(pose) => self.backend.mapper_mut().integrate(frame, &pose)?,

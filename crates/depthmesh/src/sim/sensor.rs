@@ -9,6 +9,18 @@ use crate::raster::{ChunkBounds, Geometry, Rasterizer, RenderTarget, NO_TRIANGLE
 use crate::sim::noise::NoiseModel;
 use crate::sim::scene::Scene;
 
+/// Rejects a sensor range that is not `0 < near < far` (metres).
+pub(crate) fn check_range(near: f32, far: f32) -> Result<()> {
+    if near > 0.0 && far > near && far.is_finite() {
+        Ok(())
+    } else {
+        Err(Error::parameter(
+            "sensor range",
+            format!("need 0 < near < far, got near = {near} m, far = {far} m"),
+        ))
+    }
+}
+
 /// A simulated Kinect-class sensor.
 #[derive(Debug)]
 pub struct SimulatedSensor {
@@ -72,12 +84,7 @@ impl SimulatedSensor {
         seed: u64,
     ) -> Result<Self> {
         intrinsics.validate()?;
-        if !(near > 0.0 && far > near && far.is_finite()) {
-            return Err(Error::parameter(
-                "sensor range",
-                format!("need 0 < near < far, got near = {near} m, far = {far} m"),
-            ));
-        }
+        check_range(near, far)?;
         Ok(SimulatedSensor {
             intrinsics,
             near,
