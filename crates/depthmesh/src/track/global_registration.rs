@@ -907,11 +907,7 @@ translation = [-0.3, 0.9, -0.2]
     fn a_frame_is_registered_to_a_map_seen_only_from_elsewhere() {
         let text = format!("{ROOM}\n{CLUTTER}");
         let room = scene(&text);
-        let map = SceneMap {
-            scene: &room,
-            blind_below: 0,
-            mesh: Default::default(),
-        };
+        let map = SceneMap::new(&room, 0);
         let k = Intrinsics::from_vertical_fov(160, 120, 60.0);
         let centre = Vec3::new(0.0, 0.4, 0.0);
         // The map seen from poses a quarter of the way around the room,

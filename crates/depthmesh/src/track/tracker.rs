@@ -1038,7 +1038,7 @@ impl Tracker {
 #[cfg(test)]
 pub(super) mod tests {
     use super::*;
-    use crate::sim::{NoiseModel, Scene, SceneOptions, SimulatedSensor};
+    use crate::sim::{NoiseModel, Scene, SceneModel, SceneOptions, SimulatedSensor};
     use glam::Vec3;
     use std::path::Path;
 
@@ -1098,15 +1098,24 @@ pub(super) mod tests {
         }
     }
 
-    /// A map that is the scene itself, blind in views narrower than
-    /// `blind_below` pixels.
-    pub(in crate::track) struct SceneMap<'a> {
-        pub(in crate::track) scene: &'a Scene,
-        pub(in crate::track) blind_below: u32,
-        pub(in crate::track) mesh: crate::mesh::Mesh,
+    /// A map that is the scene itself ([`SceneModel`], its first
+    /// iteration), blind in views narrower than `blind_below` pixels.
+    pub(in crate::track) struct SceneMap {
+        model: SceneModel,
+        blind_below: u32,
     }
 
-    impl Mapper for SceneMap<'_> {
+    impl SceneMap {
+        /// `scene` as a map, seen within the test sensors' 0.4–6 m.
+        pub(in crate::track) fn new(scene: &Scene, blind_below: u32) -> Self {
+            SceneMap {
+                model: SceneModel::new(scene.clone(), 0.4, 6.0).unwrap(),
+                blind_below,
+            }
+        }
+    }
+
+    impl Mapper for SceneMap {
         fn name(&self) -> &'static str {
             "scene"
         }
@@ -1121,11 +1130,10 @@ pub(super) mod tests {
             if k.width < self.blind_below {
                 return DepthImage::new(k.width, k.height);
             }
-            let mut sensor = SimulatedSensor::new(*k, 0.4, 6.0, NoiseModel::None, 1).unwrap();
-            sensor.capture(self.scene, 1, pose).depth
+            self.model.render_depth(k, pose)
         }
         fn mesh(&mut self) -> &crate::mesh::Mesh {
-            &self.mesh
+            self.model.mesh()
         }
         fn stats(&self) -> crate::map::MapStats {
             Default::default()
@@ -1145,11 +1153,7 @@ pub(super) mod tests {
         };
         let mut sensor = SimulatedSensor::new(k, 0.4, 6.0, NoiseModel::None, 1).unwrap();
         let mut frame = |i: f32| sensor.capture(&room, 1, &at(i)).depth;
-        let map = |blind_below| SceneMap {
-            scene: &room,
-            blind_below,
-            mesh: Default::default(),
-        };
+        let map = |blind_below| SceneMap::new(&room, blind_below);
         let mut tracker = Tracker::new(TrackerConfig::default(), k, at(0.0)).unwrap();
         assert_eq!(tracker.model_intrinsics().width, 160);
         // The first frame, without a measured motion, is aligned at the
@@ -1170,12 +1174,12 @@ pub(super) mod tests {
     }
 
     /// A map that notes the width of every view rendered from it.
-    struct CountingMap<'a> {
-        map: SceneMap<'a>,
+    struct CountingMap {
+        map: SceneMap,
         widths: std::cell::RefCell<Vec<u32>>,
     }
 
-    impl Mapper for CountingMap<'_> {
+    impl Mapper for CountingMap {
         fn name(&self) -> &'static str {
             "counting"
         }
@@ -1205,11 +1209,7 @@ pub(super) mod tests {
         let k = Intrinsics::from_vertical_fov(640, 480, 60.0);
         let mut sensor = SimulatedSensor::new(k, 0.4, 6.0, NoiseModel::None, 1).unwrap();
         let map = CountingMap {
-            map: SceneMap {
-                scene,
-                blind_below: 0,
-                mesh: Default::default(),
-            },
+            map: SceneMap::new(scene, 0),
             widths: Default::default(),
         };
         let mut tracker = Tracker::new(TrackerConfig::default(), k, poses[0]).unwrap();
@@ -1266,11 +1266,7 @@ pub(super) mod tests {
         let mut sensor = sensor(NoiseModel::None);
         let mut tracker = Tracker::new(TrackerConfig::default(), k, poses[0]).unwrap();
         for (i, pose) in poses.iter().enumerate().skip(1) {
-            let map = SceneMap {
-                scene: &room,
-                blind_below: if (4..9).contains(&i) { u32::MAX } else { 0 },
-                mesh: Default::default(),
-            };
+            let map = SceneMap::new(&room, if (4..9).contains(&i) { u32::MAX } else { 0 });
             let t = tracker.track(&sensor.capture(&room, 1, pose).depth, &map);
             if (4..9).contains(&i) {
                 assert_eq!(t.lost, Some(LostReason::EmptyModel), "frame {i}");
@@ -1489,12 +1485,8 @@ translation = [0.2, 0.225, -0.1]
 "#;
 
     /// The scene itself as the map: what a perfect fusion would predict.
-    fn scene_map(scene: &Scene) -> SceneMap<'_> {
-        SceneMap {
-            scene,
-            blind_below: 0,
-            mesh: Default::default(),
-        }
+    fn scene_map(scene: &Scene) -> SceneMap {
+        SceneMap::new(scene, 0)
     }
 
     /// Tracks the first `count` poses of the scene's 200-pose helix (the
