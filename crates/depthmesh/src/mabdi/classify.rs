@@ -46,12 +46,8 @@ impl Threshold {
     /// The threshold in metres at depth `z` metres.
     #[inline]
     pub fn at(&self, z: f32) -> f32 {
-        match *self {
-            Threshold::Normalised { value, near, far } => {
-                value * z * z * (far - near) / (far * near)
-            }
-            Threshold::Metres(m) => m,
-        }
+        let (a, b) = self.quadratic();
+        a + b * z * z
     }
 }
 
