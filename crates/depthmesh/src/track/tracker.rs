@@ -1162,10 +1162,12 @@ pub(super) mod tests {
     }
 
     /// A map that is the scene itself ([`SceneModel`], its first
-    /// iteration), blind in views narrower than `blind_below` pixels.
+    /// iteration), blind in views narrower than `blind_below` pixels; it
+    /// notes the width of every view rendered from it.
     pub(in crate::track) struct SceneMap {
         model: SceneModel,
         blind_below: u32,
+        widths: std::cell::RefCell<Vec<u32>>,
     }
 
     impl SceneMap {
@@ -1174,6 +1176,7 @@ pub(super) mod tests {
             SceneMap {
                 model: SceneModel::new(scene.clone(), 0.4, 6.0).unwrap(),
                 blind_below,
+                widths: Default::default(),
             }
         }
     }
@@ -1190,6 +1193,7 @@ pub(super) mod tests {
             Ok(Default::default())
         }
         fn render_depth(&self, k: &Intrinsics, pose: &Pose) -> DepthImage {
+            self.widths.borrow_mut().push(k.width);
             if k.width < self.blind_below {
                 return DepthImage::new(k.width, k.height);
             }
@@ -1236,45 +1240,13 @@ pub(super) mod tests {
         assert_eq!(tracker.last_good(), good);
     }
 
-    /// A map that notes the width of every view rendered from it.
-    struct CountingMap {
-        map: SceneMap,
-        widths: std::cell::RefCell<Vec<u32>>,
-    }
-
-    impl Mapper for CountingMap {
-        fn name(&self) -> &'static str {
-            "counting"
-        }
-        fn integrate(
-            &mut self,
-            frame: &crate::image::Frame,
-            pose: &Pose,
-        ) -> Result<crate::map::IntegrateReport> {
-            self.map.integrate(frame, pose)
-        }
-        fn render_depth(&self, k: &Intrinsics, pose: &Pose) -> DepthImage {
-            self.widths.borrow_mut().push(k.width);
-            self.map.render_depth(k, pose)
-        }
-        fn mesh(&mut self) -> &crate::mesh::Mesh {
-            self.map.mesh()
-        }
-        fn stats(&self) -> crate::map::MapStats {
-            self.map.stats()
-        }
-    }
-
     /// The widths of the views rendered to track each of `poses` after
     /// the first (given), the tracker restored from its saved state before
     /// the last.
     fn views_rendered(scene: &Scene, poses: &[Pose]) -> Vec<Vec<u32>> {
         let k = Intrinsics::from_vertical_fov(640, 480, 60.0);
         let mut sensor = SimulatedSensor::new(k, 0.4, 6.0, NoiseModel::None, 1).unwrap();
-        let map = CountingMap {
-            map: SceneMap::new(scene, 0),
-            widths: Default::default(),
-        };
+        let map = SceneMap::new(scene, 0);
         let mut tracker = Tracker::new(TrackerConfig::default(), k, poses[0]).unwrap();
         let mut views = Vec::new();
         for (i, pose) in poses.iter().enumerate().skip(1) {
@@ -1547,11 +1519,6 @@ size = [0.3, 0.25, 0.2]
 translation = [0.2, 0.225, -0.1]
 "#;
 
-    /// The scene itself as the map: what a perfect fusion would predict.
-    fn scene_map(scene: &Scene) -> SceneMap {
-        SceneMap::new(scene, 0)
-    }
-
     /// Tracks the first `count` poses of the scene's 200-pose helix (the
     /// judged runs' speed: 10–16 cm a frame) with Kinect noise; the worst
     /// position error.
@@ -1563,7 +1530,7 @@ translation = [0.2, 0.225, -0.1]
         let mut sensor = SimulatedSensor::kinect(NoiseModel::Kinect, 7);
         let k = sensor.intrinsics;
         let mut tracker = Tracker::new(TrackerConfig::default(), k, poses[0]).unwrap();
-        let map = scene_map(&scene);
+        let map = SceneMap::new(&scene, 0);
         let mut worst = 0.0f32;
         for (i, pose) in poses.iter().enumerate().take(count).skip(1) {
             let t = tracker.track(&sensor.capture(&scene, i as u32, pose).depth, &map);
@@ -1609,7 +1576,7 @@ translation = [0.2, 0.225, -0.1]
         let last = poses[poses.len() - 1];
         let jump = last.translation.distance(next.translation);
         assert!((0.5..=1.0).contains(&jump), "{jump}");
-        let map = scene_map(scene);
+        let map = SceneMap::new(scene, 0);
         let mut tracker =
             Tracker::new(TrackerConfig::default(), sensor.intrinsics, poses[0]).unwrap();
         for (i, pose) in poses.iter().enumerate().skip(1) {
@@ -1629,7 +1596,7 @@ translation = [0.2, 0.225, -0.1]
         scene: &Scene,
         poses: &[Pose],
     ) -> usize {
-        let map = scene_map(scene);
+        let map = SceneMap::new(scene, 0);
         let mut found_at = None;
         for (i, pose) in poses.iter().enumerate() {
             let t = tracker.track(&sensor.capture(scene, 100 + i as u32, pose).depth, &map);
@@ -1672,7 +1639,10 @@ translation = [0.2, 0.225, -0.1]
         let mut sensor = SimulatedSensor::new(k, 0.4, 6.0, NoiseModel::Kinect, 3).unwrap();
         let (start, first) = (around_room(0.0), around_room(12.0));
         let mut tracker = Tracker::new(TrackerConfig::default(), k, start).unwrap();
-        let t = tracker.track(&sensor.capture(&room, 1, &first).depth, &scene_map(&room));
+        let t = tracker.track(
+            &sensor.capture(&room, 1, &first).depth,
+            &SceneMap::new(&room, 0),
+        );
         assert_eq!(t.lost, None);
         assert!(!t.relocalised);
         let (dt, dr) = error(&t.pose, &first);
@@ -1746,7 +1716,7 @@ translation = [0.2, 0.225, -0.1]
         mapped.objects.retain(|o| o.name != "wall -z");
         assert_eq!(mapped.objects.len() + 1, room.objects.len());
         let (mut sensor, mut tracker) = keyframes_around(&mapped, 7);
-        let map = scene_map(&mapped);
+        let map = SceneMap::new(&mapped, 0);
         let pose = Pose::look_at(
             Vec3::new(-0.2, 1.3, 2.0),
             Vec3::new(0.0, 0.9, -3.0),
@@ -1787,7 +1757,7 @@ translation = [0.0, 0.3, 0.6]
         assert!(tracker.keyframes() > 3);
         // The map is the room; the frames show another place from the same
         // kind of poses.
-        let map = scene_map(&room);
+        let map = SceneMap::new(&room, 0);
         for i in 0..12 {
             let pose = around_room(30.0 * i as f32);
             let t = tracker.relocalise(&sensor.capture(&elsewhere, 50 + i, &pose).depth, &map);
