@@ -128,7 +128,7 @@ pub fn run(args: &RelocaliseArgs) -> Result<()> {
         let t = tracker.relocalise(&frame.depth, &map);
         seconds.push(start.elapsed().as_secs_f64());
         let d = reference.inverse().compose(&t.pose);
-        let correct = within(&reference, &t.pose);
+        let correct = within(&d);
         let reference_fit = explained_fraction(&frame.depth, &map.render_depth(&k, &reference));
         // A refinement that leaves the map explaining less of the frame is
         // not the map's pose near the reference.
@@ -148,8 +148,8 @@ pub fn run(args: &RelocaliseArgs) -> Result<()> {
             moved_degrees = moved_degrees.max(m.rotation_angle().to_degrees());
         }
         explained_refined += usize::from(refined_fit >= 0.5);
-        let correct_refined = within(&map_reference, &t.pose);
         let dr = map_reference.inverse().compose(&t.pose);
+        let correct_refined = within(&dr);
         let can_explain = reference_fit >= 0.5;
         explained += usize::from(can_explain);
         if args.verbose {
@@ -214,9 +214,9 @@ pub fn run(args: &RelocaliseArgs) -> Result<()> {
     Ok(())
 }
 
-/// Whether `pose` is within 5 cm and 5° of `reference`.
-fn within(reference: &Pose, pose: &Pose) -> bool {
-    let d = reference.inverse().compose(pose);
+/// Whether a pose off its reference by `d` (reference⁻¹ ∘ pose) is within
+/// 5 cm and 5° of it.
+fn within(d: &Pose) -> bool {
     d.translation.length() <= CORRECT_METRES && d.rotation_angle().to_degrees() <= CORRECT_DEGREES
 }
 
