@@ -323,18 +323,13 @@ fn eval_relocalise_judges_against_the_reference_refined_against_the_map() {
     let mut writer = depthmesh::dataset::FramesWriter::create(&dir, &k).unwrap();
     let drift = Vec3::new(0.07, 0.0, 0.0);
     for i in 0..36 {
-        let (pose, written) = match i < 30 {
-            true => (
-                around(12.0 * i as f32, 2.0, 1.3),
-                around(12.0 * i as f32, 2.0, 1.3),
-            ),
-            false => {
-                let truth = around(60.0 * (i - 30) as f32 + 6.0, 1.9, 1.35);
-                (
-                    truth,
-                    Pose::from_quat(truth.quat(), truth.translation + drift),
-                )
-            }
+        let (pose, written) = if i < 30 {
+            let pose = around(12.0 * i as f32, 2.0, 1.3);
+            (pose, pose)
+        } else {
+            let truth = around(60.0 * (i - 30) as f32 + 6.0, 1.9, 1.35);
+            let drifted = Pose::from_quat(truth.quat(), truth.translation + drift);
+            (truth, drifted)
         };
         let frame = sensor.capture(&scene, 1, &pose);
         writer.write(i, &frame.depth, &written).unwrap();
