@@ -17,6 +17,13 @@ pub struct Association {
     pub min_normal_cos: f32,
     /// Give every normal orientation the same say (see [`bin_weights`]).
     pub balance: bool,
+    /// Half-width, in model-view pixels, of the window searched for the
+    /// nearest model point when the pixel a frame point projects to holds
+    /// none within the distance and angle (0: that pixel alone). From a
+    /// start centimetres off, a structure narrower than the offset (a
+    /// lamp's pole) projects onto what lies behind it, and projective
+    /// association alone drops the one surface that pins the motion.
+    pub window: usize,
 }
 
 /// The normal equations `A·x = -b` of one ICP iteration, summed over the
@@ -203,18 +210,11 @@ pub fn equations(
                 if !(u >= 0.0 && v >= 0.0 && u < mw as f32 && v < mh as f32) {
                     continue;
                 }
-                let i = v as i32 as usize * mw + u as i32 as usize;
-                let mn = model.normals[i];
-                if mn == Vec3::ZERO {
+                let pixel = (u as i32 as usize, v as i32 as usize);
+                let normal = frame_to_model.transform_vector(n);
+                let Some((d, mn)) = associate(model, pixel, p, normal, assoc, max_d2) else {
                     continue;
-                }
-                let m = model.points[i];
-                let d = p - m;
-                if d.length_squared() > max_d2
-                    || frame_to_model.transform_vector(n).dot(mn) < assoc.min_normal_cos
-                {
-                    continue;
-                }
+                };
                 let r = p.cross(mn);
                 let s = weights[normal_bin(n)];
                 row.add(
@@ -227,6 +227,47 @@ pub fn equations(
             eq
         })
         .reduce(Equations::default, Equations::merge)
+}
+
+/// The model point that frame point `p` with normal `n` (both in the model
+/// camera's frame), projecting to `pixel` of the model view, is associated
+/// with: the difference `p − m` and the model normal. The point seen
+/// through that pixel if it lies within the distance and angle, else the
+/// nearest that does within [`Association::window`] pixels.
+#[inline(always)]
+fn associate(
+    model: &Level,
+    (u, v): (usize, usize),
+    p: Vec3,
+    n: Vec3,
+    assoc: &Association,
+    max_d2: f32,
+) -> Option<(Vec3, Vec3)> {
+    let (mw, mh) = model.size();
+    let candidate = |i: usize| {
+        let mn = model.normals[i];
+        if mn == Vec3::ZERO {
+            return None;
+        }
+        let d = p - model.points[i];
+        let d2 = d.length_squared();
+        (d2 <= max_d2 && n.dot(mn) >= assoc.min_normal_cos).then_some((d2, d, mn))
+    };
+    if let Some((_, d, mn)) = candidate(v * mw + u) {
+        return Some((d, mn));
+    }
+    let r = assoc.window;
+    let mut nearest: Option<(f32, Vec3, Vec3)> = None;
+    for y in v.saturating_sub(r)..(v + r + 1).min(mh) {
+        for x in u.saturating_sub(r)..(u + r + 1).min(mw) {
+            if let Some(c) = candidate(y * mw + x) {
+                if nearest.is_none_or(|b| c.0 < b.0) {
+                    nearest = Some(c);
+                }
+            }
+        }
+    }
+    nearest.map(|(_, d, mn)| (d, mn))
 }
 
 /// The bin of a normal by its dominant axis and sign (six bins).
@@ -375,6 +416,44 @@ mod tests {
         let mut pyramid = Pyramid::default();
         pyramid.build(&depth, &k, 1);
         pyramid.levels.swap_remove(0)
+    }
+
+    #[test]
+    fn the_window_finds_a_thin_surface_its_own_pixel_misses() {
+        // A strip at 1 m, pixels 20–25 wide (normals on 21–24), before a
+        // wall at 3 m; a frame point on the strip's middle seen 8 pixels
+        // to the right, where the model view has the wall.
+        let model = level(|u, _| if (20..26).contains(&u) { 1.0 } else { 3.0 });
+        let k = model.intrinsics.unwrap();
+        let p = model.points[24 * 64 + 23] + Vec3::X * (8.0 / k.fx);
+        let n = Vec3::NEG_Z;
+        let find = |window| {
+            let assoc = Association {
+                max_distance: 0.3,
+                min_normal_cos: 0.9,
+                balance: false,
+                window,
+            };
+            associate(&model, (31, 24), p, n, &assoc, 0.09)
+        };
+        assert_eq!(find(0), None);
+        // Its nearest strip point with a normal is 7 pixels away.
+        assert_eq!(find(6), None);
+        let (d, normal) = find(8).expect("the strip within 8 pixels");
+        let nearest = p - model.points[24 * 64 + 24];
+        assert!((d - nearest).length() < 1e-6, "{d} against {nearest}");
+        assert!(normal.dot(n) > 0.99, "{normal}");
+        // Where its own pixel holds a point within reach, that one is
+        // kept, however near another lies in the window.
+        let on_wall = model.points[24 * 64 + 40] + Vec3::Z * 0.05;
+        let assoc = Association {
+            max_distance: 0.3,
+            min_normal_cos: 0.9,
+            balance: false,
+            window: 8,
+        };
+        let (d, _) = associate(&model, (40, 24), on_wall, n, &assoc, 0.09).unwrap();
+        assert!((d - Vec3::Z * 0.05).length() < 1e-6, "{d}");
     }
 
     #[test]
