@@ -257,6 +257,9 @@ fn associate(
         return Some((d, mn));
     }
     let r = assoc.window;
+    if r == 0 {
+        return None;
+    }
     let mut nearest: Option<(f32, Vec3, Vec3)> = None;
     for y in v.saturating_sub(r)..(v + r + 1).min(mh) {
         for x in u.saturating_sub(r)..(u + r + 1).min(mw) {
@@ -427,32 +430,26 @@ mod tests {
         let k = model.intrinsics.unwrap();
         let p = model.points[24 * 64 + 23] + Vec3::X * (8.0 / k.fx);
         let n = Vec3::NEG_Z;
-        let find = |window| {
+        let find = |pixel, point, window| {
             let assoc = Association {
                 max_distance: 0.3,
                 min_normal_cos: 0.9,
                 balance: false,
                 window,
             };
-            associate(&model, (31, 24), p, n, &assoc, 0.09)
+            associate(&model, pixel, point, n, &assoc, 0.09)
         };
-        assert_eq!(find(0), None);
+        assert_eq!(find((31, 24), p, 0), None);
         // Its nearest strip point with a normal is 7 pixels away.
-        assert_eq!(find(6), None);
-        let (d, normal) = find(8).expect("the strip within 8 pixels");
+        assert_eq!(find((31, 24), p, 6), None);
+        let (d, normal) = find((31, 24), p, 8).expect("the strip within 8 pixels");
         let nearest = p - model.points[24 * 64 + 24];
         assert!((d - nearest).length() < 1e-6, "{d} against {nearest}");
         assert!(normal.dot(n) > 0.99, "{normal}");
         // Where its own pixel holds a point within reach, that one is
         // kept, however near another lies in the window.
         let on_wall = model.points[24 * 64 + 40] + Vec3::Z * 0.05;
-        let assoc = Association {
-            max_distance: 0.3,
-            min_normal_cos: 0.9,
-            balance: false,
-            window: 8,
-        };
-        let (d, _) = associate(&model, (40, 24), on_wall, n, &assoc, 0.09).unwrap();
+        let (d, _) = find((40, 24), on_wall, 8).unwrap();
         assert!((d - Vec3::Z * 0.05).length() < 1e-6, "{d}");
     }
 
