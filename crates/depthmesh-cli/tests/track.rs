@@ -46,23 +46,7 @@ fn a_fast_start_pinned_by_a_thin_pole_stays_on_its_path() {
     // 2.12 cm (1.48 aligned), measured.
     let dir = scratch("track-sofa");
     let out = dir.join("out");
-    ok(&depthmesh(&[
-        "simulate",
-        "--scene",
-        "../../scenes/sofa_room.toml",
-        "--map",
-        "tsdf",
-        "--track",
-        "--noise",
-        "kinect",
-        "--iterations",
-        "200",
-        "--seed",
-        "1",
-        "--quiet",
-        "--out",
-        out.to_str().unwrap(),
-    ]));
+    track_simulated("sofa_room", &out, 200, &["--seed", "1"]);
     let s = summary(&out);
     assert_eq!(s["lost"], 0, "{s}");
     let ate = s["ate_rmse_cm"].as_f64().unwrap();
@@ -157,20 +141,25 @@ fn tracking_against_the_scene_itself_leaves_only_the_trackers_error() {
 /// Tracks `iterations` frames of the room along a line with Kinect noise
 /// (2 cm TSDF) into `out`, with `extra` flags.
 fn track_room_line(out: &std::path::Path, iterations: u32, extra: &[&str]) {
+    let mut args = vec!["--voxel", "0.02", "--path", "line"];
+    args.extend_from_slice(extra);
+    track_simulated("room", out, iterations, &args);
+}
+
+/// Tracks `iterations` frames of `scenes/SCENE.toml` with Kinect noise into
+/// a TSDF in `out`, with `extra` flags.
+fn track_simulated(scene: &str, out: &std::path::Path, iterations: u32, extra: &[&str]) {
+    let scene = format!("../../scenes/{scene}.toml");
     let iterations = iterations.to_string();
     let mut args = vec![
         "simulate",
         "--scene",
-        "../../scenes/room.toml",
+        &scene,
         "--map",
         "tsdf",
-        "--voxel",
-        "0.02",
         "--track",
         "--noise",
         "kinect",
-        "--path",
-        "line",
         "--iterations",
         &iterations,
         "--quiet",
