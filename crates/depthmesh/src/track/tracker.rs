@@ -62,8 +62,8 @@ const GLOBAL_CANDIDATES: usize = 3;
 /// [`Association::window`]). The simulated sofa room's first frame moved
 /// 16 cm with nothing measured: ICP ended 4.6 cm off along the sofa, where
 /// only a 4 cm lamp pole pins the camera, and the next frames slid on to
-/// 16 cm. With four pixels (1.5–2 cm at 2.5 m) its first frame lands within
-/// 0.4 cm; twelve did no better and cost three times as long. Only the
+/// 16 cm. With four pixels (1.5–2 cm at 2.5 m) its first frame lands
+/// 0.2 cm off; twelve did no better and cost three times as long. Only the
 /// frame's own ICP searches it, not relocalisation's from candidate poses:
 /// there it left the kitchen's poses found at the map's edge up to 2.9 cm
 /// from the references refined against the map, instead of 0.7 cm.
