@@ -57,6 +57,21 @@ pub enum TrackModel {
     /// still fused, from the poses found. The tracker's own error, without
     /// what the map's rendition of the scene adds.
     Scene,
+    /// The map fused from the true poses (the frames' poses are still
+    /// tracked against it): the error the map's rendition of the scene
+    /// adds, without the drift that fusing at estimated poses feeds back.
+    TrueMap,
+}
+
+impl TrackModel {
+    /// The flag's value, as the summary records it.
+    fn name(self) -> &'static str {
+        match self {
+            TrackModel::Map => "map",
+            TrackModel::Scene => "scene",
+            TrackModel::TrueMap => "true-map",
+        }
+    }
 }
 
 /// Flags of `depthmesh simulate`.
@@ -194,8 +209,11 @@ pub fn run_scene(args: &SimulateArgs, scene: &Scene, quiet: bool) -> Result<RunS
     args.export.check()?;
     args.bounded.check(args.map == MapKind::Tsdf)?;
     args.bounded.check_export(&args.export)?;
-    if args.track_against == TrackModel::Scene && !args.track {
-        bail!("--track-against scene chooses what --track aligns frames against: add --track");
+    if args.track_against != TrackModel::Map && !args.track {
+        bail!(
+            "--track-against {} chooses what --track aligns frames against: add --track",
+            args.track_against.name()
+        );
     }
     if args.dashboard && matches!(args.map, MapKind::Tsdf | MapKind::Planes) {
         bail!("--dashboard shows mesh addition: use it with --map mabdi or --map naive");
@@ -224,8 +242,12 @@ pub fn run_scene(args: &SimulateArgs, scene: &Scene, quiet: bool) -> Result<RunS
         }))
     };
     let (mut session, mut store, position) = args.store.open(config, source, poses.len())?;
-    if args.track_against == TrackModel::Scene {
-        session.track_against_scene(SceneModel::new(scene.clone(), sensor.near, sensor.far)?);
+    match args.track_against {
+        TrackModel::Map => {}
+        TrackModel::Scene => {
+            session.track_against_scene(SceneModel::new(scene.clone(), sensor.near, sensor.far)?)
+        }
+        TrackModel::TrueMap => session.fuse_given_poses(),
     }
     args.bounded.note_reach(&session);
     let out = OutDir::prepare(&args.out, args.force || args.store.resume)?;
@@ -309,11 +331,7 @@ pub fn run_scene(args: &SimulateArgs, scene: &Scene, quiet: bool) -> Result<RunS
         summary.insert("stopped_at_iteration".into(), json!(iteration));
     }
     if args.track {
-        let against = match args.track_against {
-            TrackModel::Map => "map",
-            TrackModel::Scene => "scene",
-        };
-        summary.insert("tracked_against".into(), against.into());
+        summary.insert("tracked_against".into(), args.track_against.name().into());
         // The true poses beside the estimated ones, and how far apart they
         // are over every frame (a lost frame counts at its last good pose).
         let truth: Vec<(f64, Pose)> = (1..).map(f64::from).zip(poses.iter().copied()).collect();

@@ -138,6 +138,24 @@ fn tracking_against_the_scene_itself_leaves_only_the_trackers_error() {
     std::fs::remove_dir_all(dir).unwrap();
 }
 
+#[test]
+fn tracking_against_the_map_the_true_poses_build_fuses_that_map() {
+    let dir = scratch("track-true-map");
+    let (tracked, given) = (dir.join("tracked"), dir.join("given"));
+    track_room_line(&tracked, 20, &["--track-against", "true-map"]);
+    simulate_scene("room", &given, 20, &["--voxel", "0.02", "--path", "line"]);
+    let s = summary(&tracked);
+    assert_eq!(s["tracked_against"], "true-map", "{s}");
+    assert_eq!(s["lost"], 0, "{s}");
+    // The map is the one the true poses build, byte for byte ...
+    let mesh = |run: &std::path::Path| std::fs::read(run.join("mesh.ply")).unwrap();
+    assert!(mesh(&tracked) == mesh(&given), "the meshes differ");
+    // ... while the poses written and measured are the tracked ones.
+    let ate = s["ate_rmse_cm"].as_f64().unwrap();
+    assert!(ate > 0.0 && ate < 0.5, "ATE {ate} cm");
+    std::fs::remove_dir_all(dir).unwrap();
+}
+
 /// Tracks `iterations` frames of the room along a line with Kinect noise
 /// (2 cm TSDF) into `out`, with `extra` flags.
 fn track_room_line(out: &std::path::Path, iterations: u32, extra: &[&str]) {
@@ -149,6 +167,14 @@ fn track_room_line(out: &std::path::Path, iterations: u32, extra: &[&str]) {
 /// Tracks `iterations` frames of `scenes/SCENE.toml` with Kinect noise into
 /// a TSDF in `out`, with `extra` flags.
 fn track_simulated(scene: &str, out: &std::path::Path, iterations: u32, extra: &[&str]) {
+    let mut args = vec!["--track"];
+    args.extend_from_slice(extra);
+    simulate_scene(scene, out, iterations, &args);
+}
+
+/// Simulates `iterations` frames of `scenes/SCENE.toml` with Kinect noise
+/// into a TSDF in `out`, with `extra` flags.
+fn simulate_scene(scene: &str, out: &std::path::Path, iterations: u32, extra: &[&str]) {
     let scene = format!("../../scenes/{scene}.toml");
     let iterations = iterations.to_string();
     let mut args = vec![
@@ -157,7 +183,6 @@ fn track_simulated(scene: &str, out: &std::path::Path, iterations: u32, extra: &
         &scene,
         "--map",
         "tsdf",
-        "--track",
         "--noise",
         "kinect",
         "--iterations",

@@ -192,6 +192,9 @@ pub struct Session {
     /// What tracking aligns frames against instead of the map (see
     /// [`Session::track_against_scene`]).
     scene_model: Option<SceneModel>,
+    /// Fuse at the frames' own poses, not the tracked ones (see
+    /// [`Session::fuse_given_poses`]).
+    fuse_given: bool,
 }
 
 impl Session {
@@ -208,6 +211,7 @@ impl Session {
             tally: Tally::default(),
             view_seen: None,
             scene_model: None,
+            fuse_given: false,
         })
     }
 
@@ -216,6 +220,17 @@ impl Session {
     /// without the error the map's rendition of the scene adds.
     pub fn track_against_scene(&mut self, model: SceneModel) {
         self.scene_model = Some(model);
+    }
+
+    /// Fuses every frame at the pose it brings (a simulated frame's true
+    /// pose), lost or not, while tracking still estimates each pose against
+    /// the map: the map is then the one the true poses build, and the
+    /// tracked poses' error is what the map's rendition of the scene adds,
+    /// without the drift that fusing at estimated poses feeds back. The
+    /// records keep the tracked poses. A frame without a pose is then an
+    /// error naming it.
+    pub fn fuse_given_poses(&mut self) {
+        self.fuse_given = true;
     }
 
     /// A session that continues one saved after its first records: the
@@ -304,6 +319,13 @@ impl Session {
                 ),
             ));
         }
+        let given = frame.pose.filter(|_| self.fuse_given);
+        if self.fuse_given && given.is_none() {
+            return Err(Error::parameter(
+                format!("frame {}", frame.index),
+                "has no pose to fuse it at: the map is fused from the frames' own poses",
+            ));
+        }
         let start = Instant::now();
         // 1. Where the camera was: given, or aligned against the map.
         let decided = match self.scene_model.as_mut() {
@@ -317,12 +339,13 @@ impl Session {
             None => self.poses.decide(frame, self.backend.mapper())?,
         };
         // 2. Fuse, unless tracking lost the frame.
-        let report = match decided.pose {
+        let fused_at = given.or(decided.pose);
+        let report = match fused_at {
             Some(pose) => self.backend.mapper_mut().integrate(frame, &pose)?,
             None => IntegrateReport::default(),
         };
         // 3. Record what happened.
-        let changed = match decided.pose {
+        let changed = match fused_at {
             Some(_) => self.backend.changed(&report),
             None => Changed::Nothing,
         };
@@ -506,17 +529,22 @@ mod tests {
         .unwrap()
     }
 
-    #[test]
-    fn a_session_with_given_poses_builds_the_map_its_back_end_builds_alone() {
-        let (sensor, frames) = frames(6);
-        let mut session = tsdf_session(&sensor, None);
-        let mut alone = TsdfMapper::new(
+    /// The session's TSDF back-end on its own, to fuse frames beside it.
+    fn tsdf_alone(sensor: &SimulatedSensor) -> TsdfMapper {
+        TsdfMapper::new(
             TsdfConfig::new(0.03),
             sensor.intrinsics,
             sensor.near,
             sensor.far,
         )
-        .unwrap();
+        .unwrap()
+    }
+
+    #[test]
+    fn a_session_with_given_poses_builds_the_map_its_back_end_builds_alone() {
+        let (sensor, frames) = frames(6);
+        let mut session = tsdf_session(&sensor, None);
+        let mut alone = tsdf_alone(&sensor);
         for f in &frames {
             let outcome = session.push(f).unwrap();
             assert_eq!(outcome.record.pose, f.pose);
@@ -534,6 +562,35 @@ mod tests {
         assert_eq!(s["tracking"], false);
         // Keys of other back-ends do not appear with value 0.
         assert!(s.get("naive_elements").is_none());
+    }
+
+    #[test]
+    fn a_session_fusing_given_poses_builds_their_map_and_records_the_tracked_ones() {
+        let (sensor, frames) = frames_of(ROOM, 300, 6);
+        let mut session = tsdf_session(&sensor, Some(TrackerConfig::default()));
+        session.fuse_given_poses();
+        let mut alone = tsdf_alone(&sensor);
+        for f in &frames {
+            session.push(f).unwrap();
+            alone.integrate(f, &f.pose.unwrap()).unwrap();
+        }
+        assert_eq!(session.mesh(), alone.mesh());
+        // Tracked, not copied: the estimates are near the poses, not them.
+        let tracked = session.records().iter().zip(&frames).skip(1);
+        assert!(tracked.clone().all(|(r, f)| r.track.is_some()
+            && r.estimate.translation.distance(f.pose.unwrap().translation) < 0.01));
+        assert!(tracked.clone().any(|(r, f)| Some(r.estimate) != f.pose));
+        // A frame with no pose to fuse at is refused, naming it.
+        let unposed = Frame {
+            pose: None,
+            ..frames[1].clone()
+        };
+        let error = session.push(&unposed).unwrap_err().to_string();
+        assert!(
+            error.contains(&format!("frame {}", frames[1].index)),
+            "{error}"
+        );
+        assert_eq!(session.records().len(), frames.len());
     }
 
     #[test]
