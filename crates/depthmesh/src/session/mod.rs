@@ -102,6 +102,9 @@ pub struct FrameRecord {
     /// Milliseconds the session spent on the frame (tracking and mapping).
     pub ms: f64,
     /// The pose the frame was fused with; `None` when tracking lost it.
+    /// A session that fuses at the frames' own poses
+    /// ([`Session::fuse_given_poses`]) keeps the tracked pose here, and
+    /// `None` for a frame tracking lost, though it fused both.
     pub pose: Option<Pose>,
     /// Where the camera is believed to have been: the fused pose, or the
     /// last good pose for a lost frame. Trajectory errors count these, so a
@@ -338,7 +341,8 @@ impl Session {
             }
             None => self.poses.decide(frame, self.backend.mapper())?,
         };
-        // 2. Fuse, unless tracking lost the frame.
+        // 2. Fuse at the frame's own pose when told to, else at the
+        // tracked one unless tracking lost the frame.
         let fused_at = given.or(decided.pose);
         let report = match fused_at {
             Some(pose) => self.backend.mapper_mut().integrate(frame, &pose)?,
