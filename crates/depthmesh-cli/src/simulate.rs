@@ -57,9 +57,10 @@ pub enum TrackModel {
     /// still fused, from the poses found. The tracker's own error, without
     /// what the map's rendition of the scene adds.
     Scene,
-    /// The map fused from the true poses (the frames' poses are still
-    /// tracked against it): the error the map's rendition of the scene
-    /// adds, without the drift that fusing at estimated poses feeds back.
+    /// The map fused from the true poses of the frames tracking keeps
+    /// (each pose is still tracked against it): the error the map's
+    /// rendition of the scene adds, without the drift that fusing at
+    /// estimated poses feeds back.
     TrueMap,
 }
 

@@ -101,10 +101,9 @@ pub struct FrameRecord {
     pub timestamp: f64,
     /// Milliseconds the session spent on the frame (tracking and mapping).
     pub ms: f64,
-    /// The pose the frame was fused with; `None` when tracking lost it.
-    /// A session that fuses at the frames' own poses
-    /// ([`Session::fuse_given_poses`]) keeps the tracked pose here, and
-    /// `None` for a frame tracking lost, though it fused both.
+    /// The pose the frame was fused with; `None` when tracking lost it. A
+    /// session that fuses at the frames' own poses
+    /// ([`Session::fuse_given_poses`]) keeps the tracked pose here.
     pub pose: Option<Pose>,
     /// Where the camera is believed to have been: the fused pose, or the
     /// last good pose for a lost frame. Trajectory errors count these, so a
@@ -225,13 +224,14 @@ impl Session {
         self.scene_model = Some(model);
     }
 
-    /// Fuses every frame at the pose it brings (a simulated frame's true
-    /// pose), lost or not, while tracking still estimates each pose against
-    /// the map: the map is then the one the true poses build, and the
-    /// tracked poses' error is what the map's rendition of the scene adds,
-    /// without the drift that fusing at estimated poses feeds back. The
-    /// records keep the tracked poses. A frame without a pose is then an
-    /// error naming it.
+    /// Fuses each frame tracking keeps at the pose the frame brings (a
+    /// simulated frame's true pose) instead of the pose tracking found
+    /// against the map: the map is then the one the true poses build, and
+    /// the tracked poses' error is what the map's rendition of the scene
+    /// adds, without the drift that fusing at estimated poses feeds back.
+    /// A frame tracking lost is not fused, as in any tracked run, so the
+    /// records' counts stay true; they keep the tracked poses. A frame
+    /// without a pose is then an error naming it.
     pub fn fuse_given_poses(&mut self) {
         self.fuse_given = true;
     }
@@ -341,9 +341,9 @@ impl Session {
             }
             None => self.poses.decide(frame, self.backend.mapper())?,
         };
-        // 2. Fuse at the frame's own pose when told to, else at the
-        // tracked one unless tracking lost the frame.
-        let fused_at = given.or(decided.pose);
+        // 2. Fuse, unless tracking lost the frame: at the frame's own pose
+        // when told to, else at the tracked one.
+        let fused_at = decided.pose.map(|tracked| given.unwrap_or(tracked));
         let report = match fused_at {
             Some(pose) => self.backend.mapper_mut().integrate(frame, &pose)?,
             None => IntegrateReport::default(),
