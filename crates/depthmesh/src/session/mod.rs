@@ -595,6 +595,16 @@ mod tests {
             "{error}"
         );
         assert_eq!(session.records().len(), frames.len());
+        // A frame tracking loses (every surface at half its distance) is
+        // not fused, though it brings a pose.
+        let before = session.mesh().clone();
+        let mut halved = frames[1].clone();
+        halved.depth.data.iter_mut().for_each(|d| *d *= 0.5);
+        let outcome = session.push(&halved).unwrap();
+        assert!(outcome.record.track.unwrap().lost.is_some());
+        assert_eq!(outcome.record.pose, None);
+        assert_eq!(session.mesh(), &before);
+        assert_eq!(session.frames_fused(), frames.len());
     }
 
     #[test]
