@@ -322,13 +322,16 @@ impl Session {
                 ),
             ));
         }
-        let given = frame.pose.filter(|_| self.fuse_given);
-        if self.fuse_given && given.is_none() {
-            return Err(Error::parameter(
-                format!("frame {}", frame.index),
-                "has no pose to fuse it at: the map is fused from the frames' own poses",
-            ));
-        }
+        let given = match (self.fuse_given, frame.pose) {
+            (false, _) => None,
+            (true, Some(pose)) => Some(pose),
+            (true, None) => {
+                return Err(Error::parameter(
+                    format!("frame {}", frame.index),
+                    "has no pose to fuse it at: the map is fused from the frames' own poses",
+                ))
+            }
+        };
         let start = Instant::now();
         // 1. Where the camera was: given, or aligned against the map.
         let decided = match self.scene_model.as_mut() {
