@@ -143,7 +143,7 @@ fn tracking_against_the_map_the_true_poses_build_fuses_that_map() {
     let dir = scratch("track-true-map");
     let (tracked, given) = (dir.join("tracked"), dir.join("given"));
     track_room_line(&tracked, 20, &["--track-against", "true-map"]);
-    simulate_scene("room", &given, 20, &["--voxel", "0.02", "--path", "line"]);
+    simulate_scene("room", &given, 20, &ROOM_LINE);
     let s = summary(&tracked);
     assert_eq!(s["tracked_against"], "true-map", "{s}");
     assert_eq!(s["lost"], 0, "{s}");
@@ -156,10 +156,13 @@ fn tracking_against_the_map_the_true_poses_build_fuses_that_map() {
     std::fs::remove_dir_all(dir).unwrap();
 }
 
+/// The room along a line, into a 2 cm TSDF.
+const ROOM_LINE: [&str; 4] = ["--voxel", "0.02", "--path", "line"];
+
 /// Tracks `iterations` frames of the room along a line with Kinect noise
 /// (2 cm TSDF) into `out`, with `extra` flags.
 fn track_room_line(out: &std::path::Path, iterations: u32, extra: &[&str]) {
-    let mut args = vec!["--voxel", "0.02", "--path", "line"];
+    let mut args = ROOM_LINE.to_vec();
     args.extend_from_slice(extra);
     track_simulated("room", out, iterations, &args);
 }
