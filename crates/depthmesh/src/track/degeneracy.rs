@@ -46,7 +46,8 @@ pub struct Directions {
     scale: [f64; 6],
     /// Noise of one inlier's residual (metres).
     noise: f64,
-    /// Inliers of the system.
+    /// Inliers of the system, each counted by its weight (see
+    /// [`Equations::weight`]).
     inliers: f64,
 }
 
@@ -76,7 +77,7 @@ impl Directions {
             b,
             scale,
             noise: eq.rms().max(NOISE_FLOOR),
-            inliers: eq.inliers as f64,
+            inliers: eq.weight,
         })
     }
 
