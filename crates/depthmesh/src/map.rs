@@ -44,19 +44,6 @@ pub trait Mapper {
     fn integrate(&mut self, frame: &Frame, pose: &Pose) -> Result<IntegrateReport>;
     /// The depth the map predicts a camera with `intrinsics` would see from `pose`.
     fn render_depth(&self, intrinsics: &Intrinsics, pose: &Pose) -> DepthImage;
-    /// [`Mapper::render_depth`], with `observations` set to how many frames
-    /// observed the surface seen through each pixel (0 where none is seen):
-    /// how settled the map is there. A map that does not count them leaves
-    /// `observations` empty.
-    fn render_depth_observed(
-        &self,
-        intrinsics: &Intrinsics,
-        pose: &Pose,
-        observations: &mut Vec<u16>,
-    ) -> DepthImage {
-        observations.clear();
-        self.render_depth(intrinsics, pose)
-    }
     /// The current mesh of the map.
     fn mesh(&mut self) -> &Mesh;
     /// The current size of the map.

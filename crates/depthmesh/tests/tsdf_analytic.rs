@@ -324,39 +324,3 @@ fn ray_casting_finds_a_floor_lying_in_a_layer_of_voxel_centres() {
         "mean {mean} m, 99th percentile {p99} m off the floor"
     );
 }
-
-#[test]
-fn ray_casting_counts_the_frames_that_observed_each_surface() {
-    // A wall 1 m ahead, fused once whole and twice more over its left half
-    // alone (the right half's depth missing).
-    let mut volume = TsdfVolume::new(TsdfConfig::new(0.01)).unwrap();
-    let k = Intrinsics::from_vertical_fov(80, 60, 60.0);
-    let pose = Pose::IDENTITY;
-    let wall = DepthImage {
-        data: vec![1.0; 80 * 60],
-        ..DepthImage::new(80, 60)
-    };
-    let mut left = wall.clone();
-    for row in left.data.chunks_mut(80) {
-        row[40..].fill(0.0);
-    }
-    for depth in [&wall, &left, &left] {
-        volume.integrate(depth, None, &k, &pose).unwrap();
-    }
-    let (mut depth, mut observations) = (DepthImage::default(), Vec::new());
-    volume.raycast_depth(&k, &pose, (0.1, 3.0), None, &mut depth, &mut observations);
-    assert_eq!(observations.len(), 80 * 60);
-    for (i, (&d, &n)) in depth.data.iter().zip(&observations).enumerate() {
-        let (u, v) = (i % 80, i / 80);
-        // Away from the border between the halves and from the edges of
-        // the view, where the fused wall ends.
-        let want = match u {
-            _ if !(4..56).contains(&v) => continue,
-            4..36 => 3,
-            44..76 => 1,
-            _ => continue,
-        };
-        assert!((d - 1.0).abs() < 0.005, "depth {d} at pixel {i}");
-        assert_eq!(n, want, "observations at pixel {i}");
-    }
-}

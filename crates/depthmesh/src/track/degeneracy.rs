@@ -46,8 +46,7 @@ pub struct Directions {
     scale: [f64; 6],
     /// Noise of one inlier's residual (metres).
     noise: f64,
-    /// Inliers of the system, each counted by its weight (see
-    /// [`Equations::weight`]).
+    /// Inliers of the system.
     inliers: f64,
 }
 
@@ -77,7 +76,7 @@ impl Directions {
             b,
             scale,
             noise: eq.rms().max(NOISE_FLOOR),
-            inliers: eq.weight,
+            inliers: eq.inliers as f64,
         })
     }
 

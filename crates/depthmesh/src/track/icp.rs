@@ -32,20 +32,13 @@ pub struct Association {
 pub struct Equations {
     ata: [f64; 21],
     atb: [f64; 6],
-    /// Sum of squared point-to-plane errors of the inliers, each weighed
-    /// by its model surface's confidence squared (see
-    /// [`Level::confidence`]).
+    /// Sum of squared point-to-plane errors of the inliers.
     pub squared_error: f64,
-    /// Sum of squared distances of the inliers from the model camera,
-    /// weighed the same, for putting rotations and translations on one
-    /// scale.
+    /// Sum of squared distances of the inliers from the model camera, for
+    /// putting rotations and translations on one scale.
     pub squared_range: f64,
     /// Associations accepted.
     pub inliers: usize,
-    /// Sum of the inliers' confidence squared: what the means are taken
-    /// over, so that they do not shrink where the map is young (the
-    /// inlier count when every model surface is trusted fully).
-    pub weight: f64,
     /// Frame points that had a normal (the candidates).
     pub candidates: usize,
 }
@@ -62,7 +55,6 @@ impl Equations {
         self.squared_error += f64::from(row.squared_error);
         self.squared_range += f64::from(row.squared_range);
         self.inliers += row.inliers;
-        self.weight += f64::from(row.weight);
         self.candidates += row.candidates;
     }
 
@@ -76,7 +68,6 @@ impl Equations {
         self.squared_error += other.squared_error;
         self.squared_range += other.squared_range;
         self.inliers += other.inliers;
-        self.weight += other.weight;
         self.candidates += other.candidates;
         self
     }
@@ -98,13 +89,7 @@ impl Equations {
 
     /// Root mean square point-to-plane error of the inliers (metres).
     pub fn rms(&self) -> f64 {
-        (self.squared_error / self.mean_over()).sqrt()
-    }
-
-    /// What sums are divided by for a mean over the inliers: their weight,
-    /// at least one.
-    fn mean_over(&self) -> f64 {
-        self.weight.max(1.0)
+        (self.squared_error / self.inliers.max(1) as f64).sqrt()
     }
 
     /// How well the inliers pin down all six degrees of freedom: the
@@ -122,7 +107,7 @@ impl Equations {
     /// RMS distance of the inliers from the model camera (metres): a
     /// rotation by an angle moves them about this far per radian.
     pub fn rms_range(&self) -> f64 {
-        (self.squared_range / self.mean_over()).sqrt()
+        (self.squared_range / self.inliers.max(1) as f64).sqrt()
     }
 
     /// The system of [`Equations::conditioning`]: `S·A·S/n` and `S·b/n`,
@@ -133,7 +118,7 @@ impl Equations {
         if self.inliers == 0 {
             return None;
         }
-        let n = self.mean_over();
+        let n = self.inliers as f64;
         let range = self.rms_range().max(1e-6);
         let scale = [1.0 / range, 1.0 / range, 1.0 / range, 1.0, 1.0, 1.0];
         let mut a = self.matrix();
@@ -160,13 +145,12 @@ struct RowSums {
     squared_error: f32,
     squared_range: f32,
     inliers: usize,
-    weight: f32,
     candidates: usize,
 }
 
 impl RowSums {
     #[inline(always)]
-    fn add(&mut self, j: [f32; 6], e: f32, range2: f32, confidence: f32) {
+    fn add(&mut self, j: [f32; 6], e: f32, range2: f32) {
         let mut k = 0;
         for r in 0..6 {
             for c in r..6 {
@@ -176,10 +160,8 @@ impl RowSums {
             self.atb[r] += j[r] * e;
         }
         self.squared_error += e * e;
-        let weight = confidence * confidence;
-        self.squared_range += weight * range2;
+        self.squared_range += range2;
         self.inliers += 1;
-        self.weight += weight;
     }
 }
 
@@ -230,17 +212,15 @@ pub fn equations(
                 }
                 let pixel = (u as i32 as usize, v as i32 as usize);
                 let normal = frame_to_model.transform_vector(n);
-                let Some((d, mn, m)) = associate(model, pixel, p, normal, assoc, max_d2) else {
+                let Some((d, mn)) = associate(model, pixel, p, normal, assoc, max_d2) else {
                     continue;
                 };
                 let r = p.cross(mn);
-                let confidence = model.confidence.get(m).copied().unwrap_or(1.0);
-                let s = weights[normal_bin(n)] * confidence;
+                let s = weights[normal_bin(n)];
                 row.add(
                     [r.x * s, r.y * s, r.z * s, mn.x * s, mn.y * s, mn.z * s],
                     d.dot(mn) * s,
                     p.length_squared(),
-                    confidence,
                 );
             }
             eq.add_row(&row);
@@ -251,8 +231,7 @@ pub fn equations(
 
 /// The model point that frame point `p` with normal `n` (both in the model
 /// camera's frame), projecting to `pixel` of the model view, is associated
-/// with: the difference `p − m`, the model normal and the index of the
-/// model pixel that holds it. The point seen
+/// with: the difference `p − m` and the model normal. The point seen
 /// through that pixel if it lies within the distance and angle, else the
 /// nearest that does within [`Association::window`] pixels.
 #[inline(always)]
@@ -263,7 +242,7 @@ fn associate(
     n: Vec3,
     assoc: &Association,
     max_d2: f32,
-) -> Option<(Vec3, Vec3, usize)> {
+) -> Option<(Vec3, Vec3)> {
     let (mw, mh) = model.size();
     let candidate = |i: usize| {
         let mn = model.normals[i];
@@ -272,16 +251,16 @@ fn associate(
         }
         let d = p - model.points[i];
         let d2 = d.length_squared();
-        (d2 <= max_d2 && n.dot(mn) >= assoc.min_normal_cos).then_some((d2, d, mn, i))
+        (d2 <= max_d2 && n.dot(mn) >= assoc.min_normal_cos).then_some((d2, d, mn))
     };
-    if let Some((_, d, mn, i)) = candidate(v * mw + u) {
-        return Some((d, mn, i));
+    if let Some((_, d, mn)) = candidate(v * mw + u) {
+        return Some((d, mn));
     }
     let r = assoc.window;
     if r == 0 {
         return None;
     }
-    let mut nearest: Option<(f32, Vec3, Vec3, usize)> = None;
+    let mut nearest: Option<(f32, Vec3, Vec3)> = None;
     for y in v.saturating_sub(r)..(v + r + 1).min(mh) {
         for x in u.saturating_sub(r)..(u + r + 1).min(mw) {
             if let Some(c) = candidate(y * mw + x) {
@@ -291,7 +270,7 @@ fn associate(
             }
         }
     }
-    nearest.map(|(_, d, mn, i)| (d, mn, i))
+    nearest.map(|(_, d, mn)| (d, mn))
 }
 
 /// The bin of a normal by its dominant axis and sign (six bins).
@@ -442,55 +421,6 @@ mod tests {
         pyramid.levels.swap_remove(0)
     }
 
-    /// The motion (rotation, translation) that solves `frame` onto `model`
-    /// from where they are, and the system it solves.
-    fn solved(frame: &Level, model: &Level) -> (([f64; 3], [f64; 3]), Equations) {
-        let assoc = Association {
-            max_distance: 0.1,
-            min_normal_cos: 0.9,
-            balance: false,
-            window: 0,
-        };
-        let eq = equations(frame, model, &Pose::IDENTITY, &assoc);
-        let directions = super::super::degeneracy::Directions::of(&eq).expect("inliers");
-        (directions.solve(1e-9), eq)
-    }
-
-    #[test]
-    fn young_model_surfaces_weigh_less_without_shrinking_the_means() {
-        // A wall at 2 m; the model has it there in the settled tiles of a
-        // checkerboard of 8-pixel tiles, 1 cm further in the young ones.
-        let frame = level(|_, _| 2.0);
-        let young = |u: u32, v: u32| (u / 8 + v / 8) % 2 == 1;
-        let mut model = level(|u, v| if young(u, v) { 2.01 } else { 2.0 });
-        let ((_, all_alike), alike) = solved(&frame, &model);
-        // Trusted alike, the wall moves to the middle of the two.
-        assert!((all_alike[2] - 0.005).abs() < 1e-3, "{all_alike:?}");
-        let (w, h) = model.size();
-        model.confidence = (0..w * h)
-            .map(|i| {
-                if young(i as u32 % 64, i as u32 / 64) {
-                    0.2
-                } else {
-                    1.0
-                }
-            })
-            .collect();
-        let ((_, settled_first), weighed) = solved(&frame, &model);
-        // The young tiles weigh 0.2² of a settled one: the wall moves
-        // 0.04/1.04 of the way towards them.
-        assert!(settled_first[2].abs() < 1e-3, "{settled_first:?}");
-        assert!(weighed.weight < 0.6 * weighed.inliers as f64);
-        // The same confidence everywhere changes no mean: the residual, the
-        // conditioning and the motion are those of the full confidence.
-        model.confidence.fill(0.3);
-        let (motion, uniform) = solved(&frame, &model);
-        assert!((uniform.weight - 0.09 * uniform.inliers as f64).abs() < 1e-3 * uniform.weight);
-        assert!((uniform.rms() - alike.rms()).abs() < 1e-6);
-        assert!((uniform.conditioning() - alike.conditioning()).abs() < 1e-6);
-        assert!((motion.1[2] - all_alike[2]).abs() < 1e-6, "{motion:?}");
-    }
-
     #[test]
     fn the_window_finds_a_thin_surface_its_own_pixel_misses() {
         // A strip at 1 m, pixels 20–25 wide (normals on 21–24), before a
@@ -512,16 +442,14 @@ mod tests {
         assert_eq!(find((31, 24), p, 0), None);
         // Its nearest strip point with a normal is 7 pixels away.
         assert_eq!(find((31, 24), p, 6), None);
-        let (d, normal, at) = find((31, 24), p, 8).expect("the strip within 8 pixels");
-        assert_eq!(at, 24 * 64 + 24);
-        let nearest = p - model.points[at];
+        let (d, normal) = find((31, 24), p, 8).expect("the strip within 8 pixels");
+        let nearest = p - model.points[24 * 64 + 24];
         assert!((d - nearest).length() < 1e-6, "{d} against {nearest}");
         assert!(normal.dot(n) > 0.99, "{normal}");
         // Where its own pixel holds a point within reach, that one is
         // kept, however near another lies in the window.
         let on_wall = model.points[24 * 64 + 40] + Vec3::Z * 0.05;
-        let (d, _, at) = find((40, 24), on_wall, 8).unwrap();
-        assert_eq!(at, 24 * 64 + 40);
+        let (d, _) = find((40, 24), on_wall, 8).unwrap();
         assert!((d - Vec3::Z * 0.05).length() < 1e-6, "{d}");
     }
 

@@ -21,10 +21,6 @@ pub struct Level {
     pub points: Vec<Vec3>,
     /// Camera-space unit normals facing the camera (zero where unknown).
     pub normals: Vec<Vec3>,
-    /// How far ICP trusts each pixel's surface, from 0 to 1: the square
-    /// root of the weight a match with it gets (see [`Pyramid::weigh`]).
-    /// Empty: every pixel fully.
-    pub confidence: Vec<f32>,
 }
 
 impl Level {
@@ -111,59 +107,28 @@ fn downsample(input: &DepthImage, out: &mut DepthImage) {
     let iw = input.width as usize;
     out.data.par_chunks_mut(w).enumerate().for_each(|(y, row)| {
         for (x, o) in row.iter_mut().enumerate() {
-            let block = block_at(&input.data, 2 * y * iw + 2 * x, iw);
-            if let Some(mean) = mean_on(&block, on_nearest_surface(&block)) {
-                *o = mean;
+            let i = 2 * y * iw + 2 * x;
+            let block = [
+                input.data[i],
+                input.data[i + 1],
+                input.data[i + iw],
+                input.data[i + iw + 1],
+            ];
+            let near = block
+                .iter()
+                .copied()
+                .filter(|&d| d > 0.0)
+                .fold(f32::INFINITY, f32::min);
+            if near.is_finite() {
+                let limit = EDGE_FRACTION * near;
+                let (sum, n) = block
+                    .iter()
+                    .filter(|&&d| d > 0.0 && d - near <= limit)
+                    .fold((0.0, 0.0), |(s, n), &d| (s + d, n + 1.0));
+                *o = sum / n;
             }
         }
     });
-}
-
-/// Halves the per-pixel `values` of a level with depth `depth` the way
-/// [`downsample`] halves the depth: each output averages the values of the
-/// pixels whose depth it averaged (0 where there were none).
-fn downsample_along(depth: &DepthImage, values: &[f32], out: &mut Vec<f32>) {
-    let (w, h) = (depth.width as usize / 2, depth.height as usize / 2);
-    let iw = depth.width as usize;
-    out.clear();
-    out.resize(w * h, 0.0);
-    out.par_chunks_mut(w).enumerate().for_each(|(y, row)| {
-        for (x, o) in row.iter_mut().enumerate() {
-            let i = 2 * y * iw + 2 * x;
-            let used = on_nearest_surface(&block_at(&depth.data, i, iw));
-            *o = mean_on(&block_at(values, i, iw), used).unwrap_or(0.0);
-        }
-    });
-}
-
-/// The 2×2 block of an image `iw` pixels wide whose top left is at `i`.
-#[inline(always)]
-fn block_at(data: &[f32], i: usize, iw: usize) -> [f32; 4] {
-    [data[i], data[i + 1], data[i + iw], data[i + iw + 1]]
-}
-
-/// Which depths of a 2×2 block lie on its nearest surface (none valid:
-/// none).
-#[inline(always)]
-fn on_nearest_surface(block: &[f32; 4]) -> [bool; 4] {
-    let near = block
-        .iter()
-        .copied()
-        .filter(|&d| d > 0.0)
-        .fold(f32::INFINITY, f32::min);
-    let limit = EDGE_FRACTION * near;
-    block.map(|d| d > 0.0 && d - near <= limit)
-}
-
-/// The mean of the values `used` picks, if it picks any.
-#[inline(always)]
-fn mean_on(values: &[f32; 4], used: [bool; 4]) -> Option<f32> {
-    let (sum, n) = values
-        .iter()
-        .zip(used)
-        .filter(|(_, u)| *u)
-        .fold((0.0, 0.0), |(s, n), (&v, _)| (s + v, n + 1.0));
-    (n > 0.0).then(|| sum / n)
 }
 
 /// The intrinsics of a half-resolution image (pixel centres at half-integers).
@@ -214,39 +179,6 @@ impl Pyramid {
                 }
             }
             level.compute_maps(k, (step >> l).max(1));
-            level.confidence.clear();
-        }
-    }
-
-    /// Sets the levels' confidence from the frames that observed each
-    /// level-0 pixel's surface (`observations`, one per pixel): in
-    /// proportion up to `settled` frames. Coarser levels average their
-    /// finer pixels' confidence as their depth averages those pixels'
-    /// depth. Without observations for every pixel (a map that does not
-    /// count them), full confidence everywhere.
-    pub fn weigh(&mut self, observations: &[u16], settled: u16) {
-        let pixels = self.levels.first().map_or(0, |l| l.depth.data.len());
-        if observations.len() != pixels {
-            self.levels.iter_mut().for_each(|l| l.confidence.clear());
-            return;
-        }
-        let settled = f32::from(settled.max(1));
-        for l in 0..self.levels.len() {
-            let (done, rest) = self.levels.split_at_mut(l);
-            let level = &mut rest[0];
-            match done.last() {
-                None => {
-                    level.confidence.clear();
-                    level.confidence.extend(
-                        observations
-                            .iter()
-                            .map(|&n| (f32::from(n) / settled).min(1.0)),
-                    );
-                }
-                Some(finer) => {
-                    downsample_along(&finer.depth, &finer.confidence, &mut level.confidence)
-                }
-            }
         }
     }
 }
@@ -304,29 +236,6 @@ mod tests {
             assert!(normals.clone().all(|n| n.dot(want) > 0.9999));
             assert_eq!(normals.count(), (w - 2 * border) * (h - 2 * border));
         }
-    }
-
-    #[test]
-    fn confidence_follows_the_observations_down_the_levels() {
-        let k = Intrinsics::from_vertical_fov(4, 2, 60.0);
-        let mut depth = DepthImage::new(4, 2);
-        depth.data = vec![1.0, 3.0, 0.0, 2.0, 1.02, 3.0, 0.0, 0.0];
-        let mut pyramid = Pyramid::default();
-        pyramid.build(&depth, &k, 2);
-        pyramid.weigh(&[10, 1, 0, 2, 2, 5, 0, 0], 5);
-        assert_eq!(
-            pyramid.levels[0].confidence,
-            vec![1.0, 0.2, 0.0, 0.4, 0.4, 1.0, 0.0, 0.0]
-        );
-        // Averaged over the pixels whose depths were: the near surface of
-        // the first block (1.0 and 1.02 m), the one depth of the second.
-        assert_eq!(pyramid.levels[1].confidence, vec![0.7, 0.4]);
-        // Without an observation per pixel, every surface is trusted.
-        pyramid.weigh(&[10, 1], 5);
-        assert!(pyramid.levels.iter().all(|l| l.confidence.is_empty()));
-        pyramid.weigh(&[1; 8], 5);
-        pyramid.build(&depth, &k, 2);
-        assert!(pyramid.levels.iter().all(|l| l.confidence.is_empty()));
     }
 
     #[test]

@@ -69,26 +69,6 @@ const GLOBAL_CANDIDATES: usize = 3;
 /// from the references refined against the map, instead of 0.7 cm.
 const START_WINDOW: usize = 4;
 
-/// Frames that must have observed a surface of the map before ICP trusts
-/// it fully; a match with one seen by fewer weighs the square of the share
-/// (the confidence multiplies the match's row of the normal equations). A
-/// surface seen by a frame or two still carries their pose error and
-/// noise, and the frames that follow align with it, so an error once made
-/// is fused into the map and kept. ElasticFusion tracks only against
-/// surfels seen often enough for the same reason; weighing instead of
-/// leaving out keeps a young map's views usable (at the start every
-/// surface is equally young, and the weights change nothing). On the
-/// simulated scenes, seeds 0–2, it lowered the chairs' error from the
-/// first pose from 1.25–1.39 cm to 1.07–1.22 and the room's from
-/// 0.23–0.25 to 0.19–0.20, and moved the table's, the bunnies', the open
-/// space's and the sofa room's by at most 0.05 cm; the plane and box, whose
-/// error is made in its first frames, went from 3.06–4.69 to 2.67–5.02
-/// (after rigid alignment from 0.75–1.27 to 0.55–0.95). In a first
-/// version of the weighing, three frames helped the chairs less (seeds 0
-/// and 2: 1.27 and 1.14 cm, against 1.18 and 1.07 with five), 30 and 100
-/// not at all.
-const SETTLED_OBSERVATIONS: u16 = 5;
-
 /// ICP iterations per level, at most: more is a mistake, not a setting.
 const MAX_ITERATIONS: usize = 100;
 
@@ -434,9 +414,6 @@ pub struct Tracker {
     filtered: DepthImage,
     frame: Pyramid,
     model: Pyramid,
-    /// Per pixel of the last view of the map, how many frames observed
-    /// its surface (see [`Mapper::render_depth_observed`]).
-    observations: Vec<u16>,
     last_good: Pose,
     /// Motion between the last two consecutive good frames (camera-to-camera).
     velocity: Pose,
@@ -482,7 +459,6 @@ impl Tracker {
             filtered: DepthImage::default(),
             frame: Pyramid::default(),
             model: Pyramid::default(),
-            observations: Vec::new(),
             last_good: start,
             velocity: Pose::IDENTITY,
             lost_streak: 0,
@@ -599,22 +575,10 @@ impl Tracker {
         self.frame.build(input, &self.intrinsics, LEVELS);
     }
 
-    /// Builds the model pyramid from `model` (seen with `k`), every surface
-    /// fully trusted; whether it has any surface to align with.
+    /// Builds the model pyramid from `model` (seen with `k`); whether it
+    /// has any surface to align with.
     fn model_view(&mut self, model: &DepthImage, k: Intrinsics) -> bool {
         self.model_view_spaced(model, k, 1)
-    }
-
-    /// Builds the model pyramid from `map`'s view with `k` from `pose`,
-    /// with normals from neighbours `step` pixels apart (see
-    /// [`Pyramid::build_spaced`]) and each surface trusted as far as it
-    /// has settled (see [`SETTLED_OBSERVATIONS`]); whether it has any
-    /// surface to align with.
-    fn view_map(&mut self, map: &dyn Mapper, k: Intrinsics, pose: Pose, step: usize) -> bool {
-        let model = map.render_depth_observed(&k, &pose, &mut self.observations);
-        let any = self.model_view_spaced(&model, k, step);
-        self.model.weigh(&self.observations, SETTLED_OBSERVATIONS);
-        any
     }
 
     /// [`Tracker::model_view`] with normals from neighbours `step` pixels
@@ -660,7 +624,8 @@ impl Tracker {
         // not): then the next frame goes back to the coarse view first.
         let (mut fine_weak, mut coarse_good) = (false, false);
         for (k, step) in views.into_iter().flatten() {
-            if !self.view_map(map, k, self.last_good, step) {
+            let model = map.render_depth(&k, &self.last_good);
+            if !self.model_view_spaced(&model, k, step) {
                 continue;
             }
             let t = self.icp(self.last_good, self.velocity, Search::Follow);
@@ -737,7 +702,8 @@ impl Tracker {
     /// The share of the frame's points the map's view from `pose` confirms
     /// less the share it contradicts (see [`agreement`]).
     fn confirmed(&mut self, map: &dyn Mapper, pose: &Pose) -> f64 {
-        if !self.view_map(map, self.model_intrinsics, *pose, 1) {
+        let model = map.render_depth(&self.model_intrinsics, pose);
+        if !self.model_view(&model, self.model_intrinsics) {
             return f64::NEG_INFINITY;
         }
         let agree = agreement(
@@ -752,7 +718,8 @@ impl Tracker {
     /// After a loss: the frame against the map's view from the last good
     /// pose.
     fn recover_near(&mut self, map: &dyn Mapper) -> Tracked {
-        if !self.view_map(map, self.model_intrinsics, self.last_good, 1) {
+        let model = map.render_depth(&self.model_intrinsics, &self.last_good);
+        if !self.model_view(&model, self.model_intrinsics) {
             return Tracked::empty(self.last_good);
         }
         self.search_near()
@@ -869,7 +836,8 @@ impl Tracker {
                 continue;
             }
             tried.push(pose);
-            if !self.view_map(map, self.model_intrinsics, pose, 1) {
+            let model = map.render_depth(&self.model_intrinsics, &pose);
+            if !self.model_view(&model, self.model_intrinsics) {
                 continue;
             }
             let (t, agree) = self.align(pose, Pose::IDENTITY, Search::Relocalise);

@@ -381,15 +381,6 @@ impl Mapper for TsdfMapper {
     }
 
     fn render_depth(&self, intrinsics: &Intrinsics, pose: &Pose) -> DepthImage {
-        self.render_depth_observed(intrinsics, pose, &mut Vec::new())
-    }
-
-    fn render_depth_observed(
-        &self,
-        intrinsics: &Intrinsics,
-        pose: &Pose,
-        observations: &mut Vec<u16>,
-    ) -> DepthImage {
         let mut depth = DepthImage::default();
         // Tracking asks for the view of the frame just fused: start the
         // rays at what that frame measured.
@@ -399,7 +390,7 @@ impl Mapper for TsdfMapper {
             .filter(|(at, _)| at == pose)
             .map(|(_, d)| (d, &self.intrinsics));
         self.volume
-            .raycast_depth(intrinsics, pose, self.range, hint, &mut depth, observations);
+            .raycast_depth(intrinsics, pose, self.range, hint, &mut depth);
         depth
     }
 

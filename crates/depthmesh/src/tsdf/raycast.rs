@@ -77,12 +77,6 @@ impl<'a> Sampler<'a> {
         (block.weight[i] > 0).then(|| f32::from(block.tsdf[i]) / TSDF_SCALE)
     }
 
-    /// The weight of the voxel nearest to world point `p` (0 where none).
-    fn weight(&mut self, p: Vec3) -> u16 {
-        self.locate(floor(p * self.scale + 0.5))
-            .map_or(0, |(block, i)| block.weight[i])
-    }
-
     /// The distance at the voxel nearest to world point `p`: `Err(true)`
     /// when its block does not exist, `Err(false)` when it was never observed.
     #[inline(always)]
@@ -298,10 +292,7 @@ impl TsdfVolume {
     }
 
     /// The depth part of [`TsdfVolume::raycast`] alone (no surface points
-    /// or normals, which cost more than the depth), with the weight of the
-    /// voxel nearest each surface point in `observations` (0 where no
-    /// surface is seen): the number of frames fused there, up to
-    /// [`TsdfConfig::max_weight`](super::TsdfConfig::max_weight).
+    /// or normals, which cost more than the depth).
     ///
     /// `hint` is a depth image taken from the same pose (any resolution, its
     /// camera model given): rays start just in front of the depth it
@@ -314,24 +305,18 @@ impl TsdfVolume {
         (near, far): (f32, f32),
         hint: Option<(&DepthImage, &Intrinsics)>,
         out: &mut DepthImage,
-        observations: &mut Vec<u16>,
     ) {
         out.reset(intrinsics.width, intrinsics.height);
-        observations.clear();
-        observations.resize(out.data.len(), 0);
         let mut rays = Rays::new(self, intrinsics, pose, near, far);
         rays.hint = hint;
-        let w = intrinsics.width as usize;
         out.data
-            .par_chunks_mut(w)
-            .zip(observations.par_chunks_mut(w))
+            .par_chunks_mut(intrinsics.width as usize)
             .enumerate()
-            .for_each(|(r, (depth, observed))| {
+            .for_each(|(r, depth)| {
                 let mut sampler = Sampler::new(self);
-                for (col, (d, n)) in depth.iter_mut().zip(observed).enumerate() {
-                    if let Some((hit, point)) = rays.cast(&mut sampler, col, r) {
+                for (col, d) in depth.iter_mut().enumerate() {
+                    if let Some((hit, _)) = rays.cast(&mut sampler, col, r) {
                         *d = hit;
-                        *n = sampler.weight(point);
                     }
                 }
             });
