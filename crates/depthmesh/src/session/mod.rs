@@ -322,15 +322,15 @@ impl Session {
                 ),
             ));
         }
-        let given = match (self.fuse_given, frame.pose) {
-            (false, _) => None,
-            (true, Some(pose)) => Some(pose),
-            (true, None) => {
-                return Err(Error::parameter(
+        let given = if self.fuse_given {
+            Some(frame.pose.ok_or_else(|| {
+                Error::parameter(
                     format!("frame {}", frame.index),
                     "has no pose to fuse it at: the map is fused from the frames' own poses",
-                ))
-            }
+                )
+            })?)
+        } else {
+            None
         };
         let start = Instant::now();
         // 1. Where the camera was: given, or aligned against the map.
