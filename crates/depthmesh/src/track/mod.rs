@@ -10,10 +10,11 @@
 //! guess instead of following the noise ([`degeneracy`]). A frame is lost
 //! only when it contradicts the map: too few matches, a large residual or
 //! an implausible jump; it is not fused. The camera is then searched for
-//! near its last pose, by matching the frame's local shape to the map's
-//! wherever the camera is ([`global_registration`]), and from the
-//! keyframes most like the frame ([`ferns`]); a pose found is verified
-//! against the map before the frame is fused.
+//! near its last pose, turned on the spot there, by matching the frame's
+//! local shape to the map's wherever the camera is
+//! ([`global_registration`]), and from the keyframes most like the frame
+//! ([`ferns`]); a pose found is verified against the map before the frame
+//! is fused.
 
 pub mod degeneracy;
 pub mod ferns;

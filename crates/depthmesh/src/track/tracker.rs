@@ -527,8 +527,9 @@ impl Tracker {
     }
 
     /// Aligns `depth` with what `map` predicts from the last good pose;
-    /// when the camera is lost, searches for it near its last pose and
-    /// then from the keyframes most like the frame.
+    /// when the camera is lost, searches for it near its last pose, then
+    /// turned on the spot there, then by global registration against the
+    /// map and from the keyframes most like the frame.
     pub fn track(&mut self, depth: &DepthImage, map: &dyn Mapper) -> Tracked {
         self.prepare(depth);
         let result = if self.lost_streak == 0 {
