@@ -367,6 +367,32 @@ impl Tracked {
     }
 }
 
+/// The vertical in a view's camera axes, from the view's `normals`: the
+/// mean of those facing within 45° of the image's up (a floor, a table top)
+/// when they are a tenth of the normals, else the image's up. A camera
+/// pitched down at a floor turns about the floor's normal, not about its
+/// own axis: turned about that, a camera pitched 22° comes at best 25° from
+/// a 70° turn, beyond ICP's reach.
+fn vertical(normals: &[glam::Vec3]) -> glam::Vec3 {
+    let image_up = glam::Vec3::NEG_Y;
+    let (mut sum, mut facing, mut seen) = (glam::Vec3::ZERO, 0usize, 0usize);
+    for &n in normals {
+        if n == glam::Vec3::ZERO {
+            continue;
+        }
+        seen += 1;
+        if n.dot(image_up) > std::f32::consts::FRAC_1_SQRT_2 {
+            sum += n;
+            facing += 1;
+        }
+    }
+    if facing * 10 < seen || sum == glam::Vec3::ZERO {
+        image_up
+    } else {
+        sum.normalize()
+    }
+}
+
 /// How an ICP run starts and is judged.
 #[derive(Clone, Copy, Debug, PartialEq)]
 enum Search {
@@ -535,21 +561,21 @@ impl Tracker {
         let result = if self.lost_streak == 0 {
             self.follow(map)
         } else {
-            let near = self.recover_near(map);
-            let turned = if near.lost.is_none() || self.lost_streak > TURN_FRAMES {
-                near
-            } else {
-                let mut turned = self.recover_turned(map);
-                turned.iterations += near.iterations;
-                turned
-            };
-            if turned.lost.is_none() {
-                turned
-            } else {
-                let mut found = self.relocalise_prepared(map);
-                found.iterations += turned.iterations;
-                found
+            let mut result = self.recover_near(map);
+            if result.lost.is_some() && self.lost_streak <= TURN_FRAMES {
+                // The model pyramid still holds the view from the last good
+                // pose that `recover_near` built.
+                let up = vertical(&self.model.levels[0].normals);
+                let before = result.iterations;
+                result = self.recover_turned(up, map);
+                result.iterations += before;
             }
+            if result.lost.is_some() {
+                let before = result.iterations;
+                result = self.relocalise_prepared(map);
+                result.iterations += before;
+            }
+            result
         };
         self.conclude(result)
     }
@@ -752,12 +778,10 @@ impl Tracker {
     }
 
     /// After a loss, when the camera is not found near its last pose: the
-    /// camera turned on the spot about the vertical (see [`Tracker::up`])
-    /// by each multiple of [`TURN_STEP_DEGREES`], the verified pose the
-    /// map confirms best. Call after [`Tracker::recover_near`], which
-    /// leaves the view from the last good pose in the model pyramid.
-    fn recover_turned(&mut self, map: &dyn Mapper) -> Tracked {
-        let up = self.up();
+    /// camera turned on the spot about `up` (in its axes at the last good
+    /// pose; see [`vertical`]) by each multiple of [`TURN_STEP_DEGREES`],
+    /// the verified pose the map confirms best.
+    fn recover_turned(&mut self, up: glam::Vec3, map: &dyn Mapper) -> Tracked {
         let steps = (180.0 / TURN_STEP_DEGREES).round() as usize;
         let candidates: Vec<Pose> = (1..=steps)
             .flat_map(|i| {
@@ -773,34 +797,6 @@ impl Tracker {
             })
             .collect();
         self.relocalise_from(&candidates, &mut Vec::new(), false, map)
-    }
-
-    /// The vertical in the camera's axes, from the model pyramid's view: the
-    /// mean normal of the surfaces in it that face within 45° of the
-    /// image's up (a floor, a table top) when they cover a tenth of what it
-    /// sees, else the image's up. A camera pitched down at a floor turns
-    /// about the floor's normal, not about its own axis: turned about that,
-    /// a camera pitched 22° comes at best 25° from a 70° turn, beyond ICP's
-    /// reach.
-    fn up(&self) -> glam::Vec3 {
-        let image_up = glam::Vec3::NEG_Y;
-        let normals = &self.model.levels[0].normals;
-        let (mut sum, mut facing, mut seen) = (glam::Vec3::ZERO, 0usize, 0usize);
-        for &n in normals {
-            if n == glam::Vec3::ZERO {
-                continue;
-            }
-            seen += 1;
-            if n.dot(image_up) > std::f32::consts::FRAC_1_SQRT_2 {
-                sum += n;
-                facing += 1;
-            }
-        }
-        if facing * 10 < seen || sum == glam::Vec3::ZERO {
-            image_up
-        } else {
-            sum.normalize()
-        }
     }
 
     /// ICP against the model view from the last good pose (built): from
@@ -1155,6 +1151,22 @@ pub(super) mod tests {
     use crate::sim::{NoiseModel, Scene, SceneModel, SceneOptions, SimulatedSensor};
     use glam::Vec3;
     use std::path::Path;
+
+    // A camera pitched 22° down at a floor, with a wall ahead: the turn
+    // axis is the floor's normal; with only the wall, the image's up.
+    #[test]
+    fn the_vertical_is_the_floor_normal_when_the_view_has_a_floor() {
+        let pitch = 22f32.to_radians();
+        let floor = Vec3::new(0.0, -pitch.cos(), -pitch.sin());
+        let wall = Vec3::new(0.3, 0.0, -1.0).normalize();
+        let mut normals = vec![floor; 30];
+        normals.extend([wall; 60]);
+        normals.extend([Vec3::ZERO; 10]);
+        assert!(vertical(&normals).angle_between(floor) < 1e-5);
+        normals.truncate(2);
+        normals.extend([wall; 60]);
+        assert_eq!(vertical(&normals), Vec3::NEG_Y);
+    }
 
     /// The room scene of the repository.
     pub(in crate::track) const ROOM: &str = include_str!("../../../../scenes/room.toml");
@@ -1675,8 +1687,8 @@ translation = [0.2, 0.225, -0.1]
     /// The first 10 m of a corridor along +x: a floor, a wall on the +z
     /// side, and two bays of a box and a post, the boxes turned apart (in
     /// `scenes/corridor.toml`, 40 m of bays that differ only in how each
-    /// box is turned, a frame can be found again in the wrong bay; see the
-    /// README).
+    /// box is turned, global registration alone can find a frame in the
+    /// wrong bay; see the README).
     const CORRIDOR: &str = r#"
 [[object]]
 shape = "plane"
