@@ -74,12 +74,13 @@ const TURN_STEP_DEGREES: f32 = 10.0;
 const TURN_FRAMES: usize = 2;
 
 /// Turns of the search on the spot (see [`TURN_STEP_DEGREES`]) refined and
-/// verified in full: every turn is first screened by ICP on the coarsest
-/// frame level against a view at half the model's resolution, and those
-/// whose pose the map explains most of the frame at go on. Only the share
-/// explained ranks them: at that resolution a right pose can have as much
-/// of the frame off the map's surface as a wrong one (a corridor's turn
-/// about: 41–50 % at the right pose, which the full verification accepts).
+/// verified in full. Every turn is first screened by ICP on the coarsest
+/// frame level against a view at half the model's resolution; those at
+/// whose pose the map explains the largest share of the frame go on. The
+/// share contradicted does not count there: at that resolution a right
+/// pose can have as much of the frame off the map's surface as a wrong
+/// one (a corridor's turn about: 41–50 % at the right pose, which the full
+/// verification accepts).
 const TURNS_REFINED: usize = 3;
 
 /// Without a measured motion, the half-width (in frame pixels, scaled to
@@ -995,6 +996,11 @@ impl Tracker {
     /// the pose found when it was verified (after a loss; default else).
     fn align(&self, base: Pose, predicted: Pose, search: Search) -> (Tracked, Agreement) {
         let recovering = search != Search::Follow;
+        // Screening runs the coarsest frame level alone, against a view
+        // rendered at half the model's resolution, whose levels are one
+        // step coarser than the model's; it is verified at that level.
+        let screening = search == Search::Screen;
+        let (model_step, verified_level) = if screening { (1, LEVELS - 1) } else { (0, 1) };
         let widen = if recovering { 2.0 } else { 1.0 };
         let assoc = Association {
             max_distance: self.config.max_distance * widen,
@@ -1027,19 +1033,13 @@ impl Tracker {
             // seen end-on, against a map fused from the true poses, slid
             // 9 cm in one frame).
             let runs = match (level == LEVELS - 1, recovering, self.velocity_known) {
-                (false, _, _) if search == Search::Screen => 0,
+                (false, _, _) if screening => 0,
                 (true, true, _) => 2 * count,
                 (true, false, true) => 0,
                 (_, false, false) => 10 * count,
                 _ => count,
             };
-            // The screening view is rendered at half the resolution: its
-            // levels are one step coarser than the model's.
-            let model = &self.model.levels[if search == Search::Screen {
-                level.saturating_sub(1)
-            } else {
-                level
-            }];
+            let model = &self.model.levels[level.saturating_sub(model_step)];
             let assoc = Association {
                 window: if self.velocity_known || search != Search::Follow {
                     0
@@ -1101,14 +1101,10 @@ impl Tracker {
             None
         };
         // Depth agreement at the pose found: the frame at half resolution
-        // against the finest model level.
+        // (at its coarsest when screening) against the finest model level.
         let verify = || {
             agreement(
-                &self.frame.levels[if search == Search::Screen {
-                    LEVELS - 1
-                } else {
-                    1
-                }],
+                &self.frame.levels[verified_level],
                 &self.model.levels[0],
                 &relative,
                 self.config.verify_distance,
