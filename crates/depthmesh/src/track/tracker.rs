@@ -1041,7 +1041,7 @@ impl Tracker {
             };
             let model = &self.model.levels[level.saturating_sub(model_step)];
             let assoc = Association {
-                window: if self.velocity_known || search != Search::Follow {
+                window: if self.velocity_known || recovering {
                     0
                 } else {
                     (START_WINDOW * model.size().0 + frame_width / 2) / frame_width
