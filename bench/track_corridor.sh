@@ -33,8 +33,11 @@ s = json.load(open(f"{sys.argv[1]}/summary.json"))
 rows = list(csv.DictReader(open(f"{sys.argv[1]}/stats.csv")))
 slow = max(rows, key=lambda r: float(r["track_ms"] or 0))
 # The frame a lost one is found at, and the next, which starts with no measured motion.
-searches = [f"{r['frame']}: {float(r['track_ms']):.0f} ms, then {float(n['track_ms']):.0f} ms"
-            for p, r, n in zip(rows, rows[1:], rows[2:]) if p["lost"] == "1"]
+# A frame found last in the walk has no next one.
+after = rows[2:] + [None]
+searches = [f"{r['frame']}: {float(r['track_ms']):.0f} ms"
+            + (f", then {float(n['track_ms']):.0f} ms" if n else "")
+            for p, r, n in zip(rows, rows[1:], after) if p["lost"] == "1"]
 print(f"{sys.argv[2]:15} seed {sys.argv[3]}: ATE {s['ate_rmse_cm']:.2f} cm (aligned {s['ate_rmse_aligned_cm']:.2f}), "
       f"lost {s['lost_frames']} frames in {s['lost']} events, fused {s['frames_fused']} of {s['frames']}; "
       f"tracking: slowest frame {slow['frame']} {float(slow['track_ms']):.0f} ms, "
