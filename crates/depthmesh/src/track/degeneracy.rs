@@ -80,6 +80,13 @@ impl Directions {
         })
     }
 
+    /// The weakest eigen-direction, as a unit vector of the range-scaled
+    /// system (rotation × range, then translation), and the range that
+    /// scales its rotations.
+    pub fn weakest(&self) -> ([f64; 6], f64) {
+        (self.vectors[0], 1.0 / self.scale[0])
+    }
+
     /// The share of the data's estimate kept along a direction of
     /// eigenvalue `value`, against a prediction of standard deviation
     /// `motion_sigma` (both in metres of the scaled system): 1 where the

@@ -3,7 +3,7 @@
 //! 6×6 normal equations of the linearised point-to-plane error, solve.
 
 use super::pyramid::Level;
-use crate::camera::Pose;
+use crate::camera::{Intrinsics, Pose};
 use crate::linalg::symmetric_eigen;
 use glam::{Quat, Vec3};
 use rayon::prelude::*;
@@ -176,7 +176,6 @@ pub fn equations(
     assoc: &Association,
 ) -> Equations {
     let (w, _) = frame.size();
-    let (mw, mh) = model.size();
     let Some(mk) = model.intrinsics else {
         return Equations::default();
     };
@@ -197,22 +196,8 @@ pub fn equations(
                     continue;
                 }
                 row.candidates += 1;
-                let p = frame_to_model.transform_point(p);
-                if p.z <= 0.0 {
-                    continue;
-                }
-                // Nearest pixel, rounding by truncation of the shifted
-                // coordinate (`round` is a library call on baseline x86-64;
-                // so is a conversion to an unsigned integer).
-                let inv_z = 1.0 / p.z;
-                let u = mk.fx * p.x * inv_z + mk.cx + 0.5;
-                let v = mk.fy * p.y * inv_z + mk.cy + 0.5;
-                if !(u >= 0.0 && v >= 0.0 && u < mw as f32 && v < mh as f32) {
-                    continue;
-                }
-                let pixel = (u as i32 as usize, v as i32 as usize);
-                let normal = frame_to_model.transform_vector(n);
-                let Some((d, mn)) = associate(model, pixel, p, normal, assoc, max_d2) else {
+                let Some((p, d, mn)) = matched(model, &mk, frame_to_model, assoc, max_d2, p, n)
+                else {
                     continue;
                 };
                 let r = p.cross(mn);
@@ -227,6 +212,96 @@ pub fn equations(
             eq
         })
         .reduce(Equations::default, Equations::merge)
+}
+
+/// How firmly the map's view pins `frame` along one `direction` of motion
+/// (a unit vector of the range-scaled system of [`Equations::scaled`]:
+/// rotation × `range`, then translation): the mean over all inliers of
+/// `(J·v)²`, counting only rows `J` with `|J·v| ≥ facing`. An eigenvalue
+/// counts every row, also those that lean towards the direction only by the
+/// noise of their normals; looking along a corridor whose walls and floor
+/// fill the view, that noise made up all but a thousandth of it along the
+/// corridor.
+pub fn facing_information(
+    frame: &Level,
+    model: &Level,
+    frame_to_model: &Pose,
+    assoc: &Association,
+    (direction, range): ([f64; 6], f64),
+    facing: f64,
+) -> f64 {
+    let (w, _) = frame.size();
+    let Some(mk) = model.intrinsics else {
+        return 0.0;
+    };
+    let max_d2 = assoc.max_distance * assoc.max_distance;
+    let (sum, inliers) = frame
+        .points
+        .par_chunks(w)
+        .zip(frame.normals.par_chunks(w))
+        .fold(
+            || (0.0f64, 0usize),
+            |(mut sum, mut inliers), (points, normals)| {
+                for (&p, &n) in points.iter().zip(normals) {
+                    if n == Vec3::ZERO {
+                        continue;
+                    }
+                    let Some((p, _, mn)) = matched(model, &mk, frame_to_model, assoc, max_d2, p, n)
+                    else {
+                        continue;
+                    };
+                    let r = p.cross(mn) / range as f32;
+                    let row = [r.x, r.y, r.z, mn.x, mn.y, mn.z].map(f64::from);
+                    let along: f64 = row.iter().zip(&direction).map(|(a, b)| a * b).sum();
+                    inliers += 1;
+                    if along.abs() >= facing {
+                        sum += along * along;
+                    }
+                }
+                (sum, inliers)
+            },
+        )
+        .reduce(|| (0.0, 0), |(a, n), (b, m)| (a + b, n + m));
+    sum / inliers.max(1) as f64
+}
+
+/// Frame point `p` with normal `n`, moved into the model camera by
+/// `frame_to_model`, and what it is associated with there (see
+/// [`associate`]): the moved point, `p − m` and the model normal.
+#[inline(always)]
+fn matched(
+    model: &Level,
+    mk: &Intrinsics,
+    frame_to_model: &Pose,
+    assoc: &Association,
+    max_d2: f32,
+    p: Vec3,
+    n: Vec3,
+) -> Option<(Vec3, Vec3, Vec3)> {
+    let p = frame_to_model.transform_point(p);
+    let pixel = project(mk, model.size(), p)?;
+    let normal = frame_to_model.transform_vector(n);
+    let (d, mn) = associate(model, pixel, p, normal, assoc, max_d2)?;
+    Some((p, d, mn))
+}
+
+/// The model pixel camera-space point `p` projects to, if it lies in
+/// front of the camera and inside the `(width, height)` view.
+#[inline(always)]
+fn project(mk: &Intrinsics, (mw, mh): (usize, usize), p: Vec3) -> Option<(usize, usize)> {
+    if p.z <= 0.0 {
+        return None;
+    }
+    // Nearest pixel, rounding by truncation of the shifted coordinate
+    // (`round` is a library call on baseline x86-64; so is a conversion
+    // to an unsigned integer).
+    let inv_z = 1.0 / p.z;
+    let u = mk.fx * p.x * inv_z + mk.cx + 0.5;
+    let v = mk.fy * p.y * inv_z + mk.cy + 0.5;
+    if !(u >= 0.0 && v >= 0.0 && u < mw as f32 && v < mh as f32) {
+        return None;
+    }
+    Some((u as i32 as usize, v as i32 as usize))
 }
 
 /// The model point that frame point `p` with normal `n` (both in the model
@@ -451,6 +526,45 @@ mod tests {
         let on_wall = model.points[24 * 64 + 40] + Vec3::Z * 0.05;
         let (d, _) = find((40, 24), on_wall, 8).unwrap();
         assert!((d - Vec3::Z * 0.05).length() < 1e-6, "{d}");
+    }
+
+    #[test]
+    fn facing_information_counts_only_the_points_that_face_a_direction() {
+        // A wall through (0, 0, 2 m) turned `degrees` about the vertical,
+        // seen by a frame that matches it where it is.
+        let facing = |degrees: f32, direction: [f64; 6]| {
+            let k = Intrinsics::from_vertical_fov(64, 48, 60.0);
+            let tan = degrees.to_radians().tan();
+            let wall = level(|u, _| 2.0 / (1.0 + tan * (u as f32 - k.cx) / k.fx));
+            let assoc = Association {
+                max_distance: 0.1,
+                min_normal_cos: 0.9,
+                balance: false,
+                window: 0,
+            };
+            facing_information(
+                &wall,
+                &wall,
+                &Pose::IDENTITY,
+                &assoc,
+                (direction, 2.0),
+                0.34,
+            )
+        };
+        let (along, across) = (
+            [0.0, 0.0, 0.0, 1.0, 0.0, 0.0],
+            [0.0, 0.0, 0.0, 0.0, 0.0, 1.0],
+        );
+        // Facing the camera, the wall pins the motion towards it fully
+        // and the motion along it not at all.
+        assert!((facing(0.0, across) - 1.0).abs() < 0.01);
+        assert_eq!(facing(0.0, along), 0.0);
+        // Turned 10°, every normal leans along the wall by sin 10°: an
+        // eigenvalue counts that (0.03), a facing row does not.
+        assert_eq!(facing(10.0, along), 0.0);
+        // Turned 30°, every row faces it by sin 30°.
+        let turned = facing(30.0, along);
+        assert!((turned - 0.25).abs() < 0.01, "{turned}");
     }
 
     #[test]
