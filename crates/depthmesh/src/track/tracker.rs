@@ -1147,7 +1147,9 @@ impl Tracker {
                 Some(LostReason::LargeError(rms))
             } else if weak.count > 0 {
                 Some(LostReason::Ambiguous(weak.count))
-            } else if eq.conditioning() < self.config.refine_conditioning
+            // A screened pose is ranked by its overlap alone, never taken.
+            } else if !screening
+                && eq.conditioning() < self.config.refine_conditioning
                 && directions.is_some_and(|d| {
                     facing_information(
                         &self.frame.levels[verified_level],
