@@ -21,7 +21,7 @@
 //! - `u32` byte length, then the level table as a bit stream: the count
 //!   less one, then each value's gap to the one before less one (the first:
 //!   its value), all Elias gamma codes;
-//! - 8 frequency tables (one per context, see [`rans`](super::rans));
+//! - 8 frequency tables (one per context, see the codec's `rans` module);
 //! - per band of 64 rows: the rANS bytes, then the raw bits, each after its
 //!   `u32` length. Bands are predicted independently (a band's first row
 //!   from its left neighbours only), so a decoder could take them in

@@ -111,7 +111,7 @@ const CHUNKS: usize = 2;
 /// Welds `mesh` (see [`weld`]) and simplifies it.
 ///
 /// A large mesh with a triangle target is simplified in parallel: it is
-/// split into [`CHUNKS`] chunks, the chunks are simplified to 1.5 times the
+/// split into two chunks, the chunks are simplified to 1.5 times the
 /// target ratio with their seams locked, and a last pass over the joined
 /// result, 15 % of the input's size at a 10 % target, reaches the target
 /// and dissolves the seams. With an error bound it runs as one pass, since two

@@ -32,7 +32,7 @@ use super::icp::Equations;
 use crate::linalg::symmetric_eigen;
 
 /// Names of the six motion axes in the camera frame, in the order of
-/// [`Update::weak_axes`]'s bits: rotations about x, y, z, translations
+/// [`Weak::axes`]' bits: rotations about x, y, z, translations
 /// along x, y, z.
 pub const AXES: [&str; 6] = ["rx", "ry", "rz", "tx", "ty", "tz"];
 

@@ -491,7 +491,7 @@ pub struct GlobalRegistration {
 pub struct Candidate {
     /// Camera-to-world.
     pub pose: Pose,
-    /// Matches within [`INLIER_DISTANCE`] at that pose.
+    /// Matches within 1.5 [`VOXEL`] at that pose.
     pub support: usize,
 }
 

@@ -15,7 +15,8 @@ pub struct Association {
     pub max_distance: f32,
     /// Smallest cosine of the angle between their normals.
     pub min_normal_cos: f32,
-    /// Give every normal orientation the same say (see [`bin_weights`]).
+    /// Give every normal orientation present the same total say
+    /// (normal-space weighting, at most 4× a point).
     pub balance: bool,
     /// Half-width, in model-view pixels, of the window searched for the
     /// nearest model point when the pixel a frame point projects to holds

@@ -205,7 +205,7 @@ pub fn mesh_slabs(
     })
 }
 
-/// Visits the blocks `keys`, which `fetch` hands out, a slab of [`SLAB`]
+/// Visits the blocks `keys`, which `fetch` hands out, a slab of four
 /// block layers along x at a time: `f` gets a volume holding the slab's
 /// blocks and the first layer of the next slab (which holds vertices of the
 /// slab's last layer), and the slab's keys, so what it meshes of them is
