@@ -780,8 +780,8 @@ impl Tracker {
     /// start centimetres off can settle off), it is weighed against the
     /// frame aligned from no motion, as [`Tracker::start_globally`] weighs
     /// its poses. Well conditioned, the pose from no motion was never
-    /// taken (the 15 corridor runs of the test below and the 20 m corridor
-    /// walks, with and without this shortcut: the same poses, that frame
+    /// taken (15 runs of the turned-about corridor of the tests below, and
+    /// the 20 m corridor walks, with and without this shortcut: the same poses, that frame
     /// in 233–323 ms instead of 443–589).
     fn start_still(&mut self, map: &dyn Mapper, moving: Tracked) -> Tracked {
         if moving.lost.is_none() && moving.conditioning >= self.config.refine_conditioning {
