@@ -693,8 +693,9 @@ impl Tracker {
     /// Without a measured motion (the first frame, and the first after the
     /// camera was found again), against the view at the frame's own
     /// resolution alone; before the first keyframe, also weighed against
-    /// the poses global registration proposes ([`Tracker::start_globally`]),
-    /// after it against no motion at all ([`Tracker::start_still`]).
+    /// the poses global registration proposes ([`Tracker::start_globally`]);
+    /// after a loss, from the step across it, and from no motion too when
+    /// that leaves the frame weak ([`Tracker::start_still`]).
     fn follow(&mut self, map: &dyn Mapper) -> Tracked {
         let mut result = self.follow_from(map, self.velocity);
         // Only before the first keyframe (the start): after the camera is
