@@ -789,27 +789,18 @@ impl Tracker {
             return moving;
         }
         let still = self.follow_from(map, Pose::IDENTITY);
-        let iterations = moving.iterations + still.iterations;
-        let chosen = if self.other_is_better(map, &moving, &still) {
-            still
-        } else {
-            moving
-        };
-        Tracked {
-            iterations,
-            ..chosen
-        }
+        self.better_of(map, moving, still)
     }
 
-    /// Whether `other`, aligned, is to be taken over `near`: always when
-    /// `near` is lost; else when it lies farther from it than the
-    /// verification distance and the map's view confirms more of the
-    /// frame's points there, less those it contradicts. Nearer, both
-    /// confirm the same points, and which scores higher is noise (a
-    /// table's first frame: 0.1 mm off and 6.7 mm off, the second scoring
-    /// 0.3 % higher).
-    fn other_is_better(&mut self, map: &dyn Mapper, near: &Tracked, other: &Tracked) -> bool {
-        other.lost.is_none()
+    /// `near`, unless `other` is aligned and `near` is lost, or `other`
+    /// lies farther from it than the verification distance and the map's
+    /// view confirms more of the frame's points there, less those it
+    /// contradicts; with the iterations of both. Nearer, both confirm the
+    /// same points, and which scores higher is noise (a table's first
+    /// frame: 0.1 mm off and 6.7 mm off, the second scoring 0.3 % higher).
+    fn better_of(&mut self, map: &dyn Mapper, near: Tracked, other: Tracked) -> Tracked {
+        let iterations = near.iterations + other.iterations;
+        let take_other = other.lost.is_none()
             && match near.lost {
                 Some(_) => true,
                 None => {
@@ -819,24 +810,13 @@ impl Tracker {
                         > f64::from(self.config.verify_distance)
                         && self.confirmed(map, &other.pose) > self.confirmed(map, &near.pose)
                 }
-            }
-    }
-
-    /// Without a measured motion ICP starts from no motion, and along what
-    /// the view pins only at its edges (a sofa seen from the front, the
-    /// camera moving along it) it can settle centimetres off (5 cm in the
-    /// first frame of such a scene, taken on by the velocity and then by
-    /// the map); global registration against the map proposes other
-    /// starts. `near` (ICP from no motion) is kept unless the verified pose
-    /// found from them is better ([`Tracker::other_is_better`]).
-    fn start_globally(&mut self, map: &dyn Mapper, near: Tracked) -> Tracked {
-        let global = self.global_candidates(map);
-        let found = self.relocalise_from(&global, &mut Vec::new(), false, map);
-        let iterations = near.iterations + found.iterations;
-        let chosen = if self.other_is_better(map, &near, &found) {
+            };
+        // A pose found from a candidate is the frame's own here, not a
+        // relocalisation.
+        let chosen = if take_other {
             Tracked {
                 relocalised: false,
-                ..found
+                ..other
             }
         } else {
             near
@@ -845,6 +825,19 @@ impl Tracker {
             iterations,
             ..chosen
         }
+    }
+
+    /// Without a measured motion ICP starts from no motion, and along what
+    /// the view pins only at its edges (a sofa seen from the front, the
+    /// camera moving along it) it can settle centimetres off (5 cm in the
+    /// first frame of such a scene, taken on by the velocity and then by
+    /// the map); global registration against the map proposes other
+    /// starts. `near` (ICP from no motion) is kept unless the verified pose
+    /// found from them is better ([`Tracker::better_of`]).
+    fn start_globally(&mut self, map: &dyn Mapper, near: Tracked) -> Tracked {
+        let global = self.global_candidates(map);
+        let found = self.relocalise_from(&global, &mut Vec::new(), false, map);
+        self.better_of(map, near, found)
     }
 
     /// The share of the frame's points the map's view from `pose` confirms
