@@ -713,6 +713,13 @@ impl Tracker {
         result
     }
 
+    /// Whether `t` was aligned, and conditioned at least as well as
+    /// [`TrackerConfig::refine_conditioning`] asks: no other view or start
+    /// is tried for it.
+    fn aligned_well(&self, t: &Tracked) -> bool {
+        t.lost.is_none() && t.conditioning >= self.config.refine_conditioning
+    }
+
     /// [`Tracker::follow`]'s alignment from `predicted` (the motion from
     /// the last good pose), against one view or two.
     fn follow_from(&mut self, map: &dyn Mapper, predicted: Pose) -> Tracked {
@@ -750,7 +757,7 @@ impl Tracker {
             if better {
                 best = Some(t);
             }
-            let good = t.lost.is_none() && t.conditioning >= self.config.refine_conditioning;
+            let good = self.aligned_well(&t);
             let is_coarse = k == self.model_intrinsics;
             fine_weak |= !is_coarse && !good;
             coarse_good |= is_coarse && good;
@@ -785,7 +792,7 @@ impl Tracker {
     /// the 20 m corridor walks, with and without this shortcut: the same poses, that frame
     /// in 233–323 ms instead of 443–589).
     fn start_still(&mut self, map: &dyn Mapper, moving: Tracked) -> Tracked {
-        if moving.lost.is_none() && moving.conditioning >= self.config.refine_conditioning {
+        if self.aligned_well(&moving) {
             return moving;
         }
         let still = self.follow_from(map, Pose::IDENTITY);
