@@ -15,6 +15,7 @@
 #
 # Usage: bench/track_scenes_vs_open3d.sh [ITERATIONS] [SEEDS] [SCENES]
 #   defaults: 200, "0 1 2", "table bunnies room open_space chairs sofa_room plane_and_box"
+#   (a name from scenes/, or the path of a scene file ending in .toml)
 # Needs ../shared beside the repository (or DEPTHMESH_SHARED).
 set -euo pipefail
 cd "$(dirname "$0")/.."
@@ -25,11 +26,13 @@ source bench/setup.sh
 bunny=$shared/data/stanford-bunny/stanford_bunny.ply
 printf '%-14s %4s   %-36s   %-36s\n' scene seed "depthmesh ATE cm (aligned) lost fps" "Open3D ATE cm (aligned) lost fps"
 for scene in $scenes; do
+  file=scenes/$scene.toml
+  [[ $scene == *.toml ]] && { file=$scene; scene=$(basename "$scene" .toml); }
   for seed in $seeds; do
     run=$work/$scene-$seed
     extra=()
-    [[ $scene == bunnies* ]] && extra=(--bunny "$bunny")
-    ./target/release/depthmesh simulate --quiet --scene "scenes/$scene.toml" --map tsdf --track \
+    grep -q '${bunny}' "$file" && extra=(--bunny "$bunny")
+    ./target/release/depthmesh simulate --quiet --scene "$file" --map tsdf --track \
       --noise kinect --iterations "$iterations" --seed "$seed" --save-frames --out "$run" \
       "${extra[@]}" > /dev/null 2> "$run.log" || { cat "$run.log"; exit 1; }
     # Open3D reads `.color.jpg` beside each depth image.
