@@ -201,10 +201,9 @@ pub fn equations(
                 else {
                     continue;
                 };
-                let r = p.cross(mn);
                 let s = weights[normal_bin(n)];
                 row.add(
-                    [r.x * s, r.y * s, r.z * s, mn.x * s, mn.y * s, mn.z * s],
+                    jacobian_row(p, mn).map(|j| j * s),
                     d.dot(mn) * s,
                     p.length_squared(),
                 );
@@ -251,8 +250,11 @@ pub fn facing_information(
                     else {
                         continue;
                     };
-                    let r = p.cross(mn) / range as f32;
-                    let row = [r.x, r.y, r.z, mn.x, mn.y, mn.z].map(f64::from);
+                    let mut row = jacobian_row(p, mn);
+                    for rotation in &mut row[..3] {
+                        *rotation /= range as f32;
+                    }
+                    let row = row.map(f64::from);
                     let along: f64 = row.iter().zip(&direction).map(|(a, b)| a * b).sum();
                     inliers += 1;
                     if along.abs() >= facing {
@@ -264,6 +266,15 @@ pub fn facing_information(
         )
         .reduce(|| (0.0, 0), |(a, n), (b, m)| (a + b, n + m));
     sum / inliers.max(1) as f64
+}
+
+/// The row of the point-to-plane Jacobian for a frame point at `p` (in the
+/// model camera) matched with a model normal `mn`: how a motion (rotation
+/// as a scaled axis, then translation) moves the point along the normal.
+#[inline(always)]
+fn jacobian_row(p: Vec3, mn: Vec3) -> [f32; 6] {
+    let r = p.cross(mn);
+    [r.x, r.y, r.z, mn.x, mn.y, mn.z]
 }
 
 /// Frame point `p` with normal `n`, moved into the model camera by
