@@ -435,7 +435,7 @@ pub struct Agreement {
 /// centre (a correct pose on 7-Scenes matched 48 % of the frame point to
 /// point, 50 % being the bar then).
 pub fn agreement(frame: &Level, model: &Level, frame_to_model: &Pose, distance: f32) -> Agreement {
-    let (mw, mh) = model.size();
+    let (mw, _) = model.size();
     let Some(mk) = model.intrinsics else {
         return Agreement::default();
     };
@@ -450,11 +450,9 @@ pub fn agreement(frame: &Level, model: &Level, frame_to_model: &Pose, distance: 
                     return (measured, on_surface, near, squared);
                 }
                 let q = frame_to_model.transform_point(p);
-                let off = mk.project(q).and_then(|uv| {
-                    let (u, v) = (uv.x + 0.5, uv.y + 0.5);
-                    let i = v as usize * mw + u as usize;
-                    let inside = u >= 0.0 && v >= 0.0 && u < mw as f32 && v < mh as f32;
-                    (inside && model.points[i].z > 0.0).then(|| {
+                let off = project(&mk, model.size(), q).and_then(|(u, v)| {
+                    let i = v * mw + u;
+                    (model.points[i].z > 0.0).then(|| {
                         let (m, n) = (model.points[i], model.normals[i]);
                         if n == Vec3::ZERO {
                             (q - m).length_squared()
