@@ -73,6 +73,18 @@ def primitive(rng, x, z, base):
     return obj("cylinder", [x, base + h / 2, z], radius=r, height=h), (r, r)
 
 
+def scatter(rng, counts, spread, base):
+    """Between counts[0] and counts[1] primitives standing at `base`, at
+    random within ±spread (x, z) of the origin: their text and footprints."""
+    text, footprints = "", []
+    for _ in range(rng.randint(*counts)):
+        x, z = rng.uniform(-spread[0], spread[0]), rng.uniform(-spread[1], spread[1])
+        part, half = primitive(rng, x, z, base)
+        text += part
+        footprints.append((x, z, half))
+    return text, footprints
+
+
 def table(rng):
     length, width = rng.uniform(0.7, 1.6), rng.uniform(0.5, 1.0)
     height, top, leg = rng.uniform(0.6, 0.9), rng.uniform(0.03, 0.1), rng.uniform(0.04, 0.1)
@@ -98,13 +110,8 @@ def room(rng):
     for sign in (-1, 1):
         text += obj("box", [0.0, 1.25, sign * (half_z + 0.05)], size=[2 * half_x, 2.5, 0.1], floor=True)
         text += obj("box", [sign * (half_x + 0.05), 1.25, 0.0], size=[0.1, 2.5, 2 * half_z], floor=True)
-    footprints = []
-    for _ in range(rng.randint(1, 4)):
-        x, z = rng.uniform(-1.0, 1.0), rng.uniform(-1.0, 1.0)
-        part, half = primitive(rng, x, z, 0.0)
-        text += part
-        footprints.append((x, z, half))
-    return text, footprints, (half_x, half_z)
+    objects, footprints = scatter(rng, (1, 4), (1.0, 1.0), 0.0)
+    return text + objects, footprints, (half_x, half_z)
 
 
 def bunnies(rng):
@@ -121,13 +128,8 @@ def bunnies(rng):
 def clutter(rng):
     text = helix(rng, [(0.6, 1.0), (1.1, 1.7)], (0.3, 0.5), (2.5, 4.5), [1.0, 1.5, 2.0])
     text += floor(10.0)
-    footprints = []
-    for _ in range(rng.randint(2, 6)):
-        x, z = rng.uniform(-1.2, 1.2), rng.uniform(-1.0, 1.0)
-        part, half = primitive(rng, x, z, 0.1)
-        text += part
-        footprints.append((x, z, half))
-    return text, footprints, None
+    objects, footprints = scatter(rng, (2, 6), (1.2, 1.0), 0.1)
+    return text + objects, footprints, None
 
 
 def path_sees_enough(text, footprints, walls):
