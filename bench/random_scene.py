@@ -57,8 +57,8 @@ def floor(size, top=0.1):
 
 
 def primitive(rng, x, z, base):
-    """A box (turned about y), ball or cylinder standing at (x, base, z)."""
-    """Also returns its footprint's half extents along x and z."""
+    """A box (turned about y), ball or cylinder standing at (x, base, z),
+    and its footprint's half extents along x and z."""
     kind = rng.choice(["box", "sphere", "cylinder"])
     if kind == "box":
         size = [rng.uniform(0.15, 1.0), rng.uniform(0.15, 0.9), rng.uniform(0.15, 0.7)]
