@@ -31,7 +31,7 @@ for scene in $scenes; do
   for seed in $seeds; do
     run=$work/$scene-$seed
     extra=()
-    grep -q '${bunny}' "$file" && extra=(--bunny "$bunny")
+    grep -qE '^[^#]*\$\{bunny\}' "$file" && extra=(--bunny "$bunny")
     ./target/release/depthmesh simulate --quiet --scene "$file" --map tsdf --track \
       --noise kinect --iterations "$iterations" --seed "$seed" --save-frames --out "$run" \
       "${extra[@]}" > /dev/null 2> "$run.log" || { cat "$run.log"; exit 1; }
