@@ -690,6 +690,7 @@ impl Tracker {
     /// Once a frame is poorly conditioned in both, the next ones go to the
     /// frame-resolution view alone (the coarse one only if that cannot
     /// align them) until one is well conditioned there.
+    ///
     /// Without a measured motion (the first frame, and the first after the
     /// camera was found again), against the view at the frame's own
     /// resolution alone; before the first keyframe, also weighed against
@@ -789,8 +790,8 @@ impl Tracker {
     /// frame aligned from no motion, as [`Tracker::start_globally`] weighs
     /// its poses. Well conditioned, the pose from no motion was never
     /// taken (15 runs of the turned-about corridor of the tests below, and
-    /// the 20 m corridor walks, with and without this shortcut: the same poses, that frame
-    /// in 233–323 ms instead of 443–589).
+    /// the 20 m corridor walks, with and without this shortcut: the same
+    /// poses, that frame in 233–323 ms instead of 443–589).
     fn start_still(&mut self, map: &dyn Mapper, moving: Tracked) -> Tracked {
         if self.aligned_well(&moving) {
             return moving;
