@@ -13,14 +13,33 @@
 # how well each registers the depth frames to each other
 # (bench/trajectory_consistency.py, lower is better).
 #
-# Usage: bench/track_vs_open3d.sh [FRAMES_END] [VOXEL]     (defaults 300, 0.01)
+# With STRIDE > 1, both track every STRIDE-th frame of 0..FRAMES_END (a
+# folder of links renumbered 0, 1, 2, …, with their poses): a camera moving
+# STRIDE times faster, or a sensor dropping frames.
+#
+# Usage: bench/track_vs_open3d.sh [FRAMES_END] [VOXEL] [STRIDE]   (defaults 300, 0.01, 1)
 # Needs ../shared beside the repository (or DEPTHMESH_SHARED).
 set -euo pipefail
 cd "$(dirname "$0")/.."
 end=${1:-300}
 voxel=${2:-0.01}
+stride=${3:-1}
 need_kitchen=1
 source bench/setup.sh
+if ((stride > 1)); then
+  mkdir "$work/strided"
+  cp "$data/camera-intrinsics.txt" "$work/strided/" 2>/dev/null || true
+  count=0
+  for ((i = 0; i < end; i += stride)); do
+    for f in "$data"/frame-$(printf %06d "$i").*; do
+      ln -s "$f" "$work/strided/frame-$(printf %06d "$count").${f#*/frame-??????.}"
+    done
+    count=$((count + 1))
+  done
+  echo "every ${stride}th frame of 0..$end: $count frames"
+  data=$work/strided
+  end=$count
+fi
 ./target/release/depthmesh reconstruct "$data" --frames "0..$end" --voxel "$voxel" --track --quiet --out "$work/ours"
 # Every frame 0..end-1 gets a pose: a lost one the last good pose before it.
 python3 - "$work/ours/trajectory.txt" "$end" > "$work/depthmesh.txt" <<'PY'
