@@ -24,6 +24,10 @@ cd "$(dirname "$0")/.."
 end=${1:-300}
 voxel=${2:-0.01}
 stride=${3:-1}
+if [[ ! $stride =~ ^[1-9][0-9]*$ ]]; then
+  echo "error: STRIDE must be a positive whole number, got \"$stride\"" >&2
+  exit 1
+fi
 need_kitchen=1
 source bench/setup.sh
 if ((stride > 1)); then
@@ -36,7 +40,7 @@ if ((stride > 1)); then
     done
     count=$((count + 1))
   done
-  echo "every ${stride}th frame of 0..$end: $count frames"
+  echo "one frame in $stride of 0..$end: $count frames"
   data=$work/strided
   end=$count
 fi
