@@ -67,6 +67,26 @@ fn a_run_killed_and_resumed_ends_as_one_never_interrupted() {
     std::fs::remove_dir_all(dir).unwrap();
 }
 
+/// `simulate` flags of a tracked run into a 2 cm TSDF, with Kinect noise
+/// of `seed`, along `path` for `iterations` poses.
+fn tracked_noisy_tsdf<'a>(seed: &'a str, path: &'a str, iterations: &'a str) -> [&'a str; 13] {
+    [
+        "--map",
+        "tsdf",
+        "--voxel",
+        "0.02",
+        "--noise",
+        "kinect",
+        "--seed",
+        seed,
+        "--path",
+        path,
+        "--iterations",
+        iterations,
+        "--track",
+    ]
+}
+
 /// `simulate` of `scene` with `args` into `out`, then `extra`, quiet.
 fn simulate(scene: &str, args: &[&str], out: &Path, extra: &[&str]) -> Command {
     let mut c = Command::new(env!("CARGO_BIN_EXE_depthmesh"));
@@ -87,21 +107,7 @@ fn a_simulated_run_killed_and_resumed_sees_the_same_noisy_frames() {
     // (the camera was lost at the second frame and, before poses found
     // after a loss had to be pinned along their weakest direction, taken
     // up again metres off).
-    let args = [
-        "--map",
-        "tsdf",
-        "--voxel",
-        "0.02",
-        "--noise",
-        "kinect",
-        "--seed",
-        "7",
-        "--path",
-        "line",
-        "--iterations",
-        "24",
-        "--track",
-    ];
+    let args = tracked_noisy_tsdf("7", "line", "24");
     let make = |out: &Path, extra: &[&str]| simulate(TABLE, &args, out, extra);
     killed_and_resumed(&dir, make, 24, true, Kills::Seeded);
     std::fs::remove_dir_all(dir).unwrap();
@@ -146,21 +152,7 @@ fn a_tracked_run_killed_and_resumed_across_a_loss_ends_as_never_interrupted() {
     let path = format!("tum:{}", tum_path(&dir, "jump.txt", &poses).display());
     let frames = poses.len() as u32;
     let iterations = frames.to_string();
-    let args = [
-        "--map",
-        "tsdf",
-        "--voxel",
-        "0.02",
-        "--noise",
-        "kinect",
-        "--seed",
-        "5",
-        "--path",
-        &path,
-        "--iterations",
-        &iterations,
-        "--track",
-    ];
+    let args = tracked_noisy_tsdf("5", &path, &iterations);
     let make = |out: &Path, extra: &[&str]| simulate(ROOM, &args, out, extra);
     killed_and_resumed(&dir, make, frames, true, Kills::OnMessage("tracking lost"));
     // The run crossed a loss, and the camera was found again within a few
