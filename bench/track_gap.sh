@@ -19,11 +19,10 @@ after=${2:-220}
 end=${3:-300}
 need_kitchen=1
 source bench/setup.sh
-mkdir "$work/frames"
-cp "$data/camera-intrinsics.txt" "$work/frames/" 2>/dev/null || true
+frames_folder "$work/frames"
 for ((i = 0; i < end; i++)); do
   if ((i < before || i >= after)); then
-    for f in "$data"/frame-$(printf %06d "$i").*; do ln -s "$f" "$work/frames/"; done
+    link_frame "$i" "$i" "$work/frames"
   fi
 done
 "$PY" - "$data" "$((before - 1))" "$after" <<'PY'

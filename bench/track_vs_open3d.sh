@@ -31,13 +31,10 @@ fi
 need_kitchen=1
 source bench/setup.sh
 if ((stride > 1)); then
-  mkdir "$work/strided"
-  cp "$data/camera-intrinsics.txt" "$work/strided/" 2>/dev/null || true
+  frames_folder "$work/strided"
   count=0
   for ((i = 0; i < end; i += stride)); do
-    for f in "$data"/frame-$(printf %06d "$i").*; do
-      ln -s "$f" "$work/strided/frame-$(printf %06d "$count").${f#*/frame-??????.}"
-    done
+    link_frame "$i" "$count" "$work/strided"
     count=$((count + 1))
   done
   echo "one frame in $stride of 0..$end: $count frames"
