@@ -435,7 +435,7 @@ pub struct Agreement {
 /// centre (a correct pose on 7-Scenes matched 48 % of the frame point to
 /// point, 50 % being the bar then).
 pub fn agreement(frame: &Level, model: &Level, frame_to_model: &Pose, distance: f32) -> Agreement {
-    let (mw, _) = model.size();
+    let size = model.size();
     let Some(mk) = model.intrinsics else {
         return Agreement::default();
     };
@@ -450,8 +450,8 @@ pub fn agreement(frame: &Level, model: &Level, frame_to_model: &Pose, distance: 
                     return (measured, on_surface, near, squared);
                 }
                 let q = frame_to_model.transform_point(p);
-                let off = project(&mk, model.size(), q).and_then(|(u, v)| {
-                    let i = v * mw + u;
+                let off = project(&mk, size, q).and_then(|(u, v)| {
+                    let i = v * size.0 + u;
                     (model.points[i].z > 0.0).then(|| {
                         let (m, n) = (model.points[i], model.normals[i]);
                         if n == Vec3::ZERO {
