@@ -2,6 +2,7 @@
 //! --map tsdf --track` does: the cases where the map's own view, not a
 //! perfect one, decides.
 
+use depthmesh::camera::Pose;
 use depthmesh::map::Mapper;
 use depthmesh::sim::{NoiseModel, PathSpec, Scene, SceneOptions, SimulatedSensor};
 use depthmesh::track::tracker::{Tracker, TrackerConfig, TrackerState};
@@ -105,5 +106,68 @@ fn a_desk_seen_end_on_is_followed_without_sliding_along_the_view() {
         // Measured at most 9 mm.
         assert!(error < 0.015, "frame {}: {:.1} mm off", i + 1, error * 1e3);
         map.integrate(&f, &t.pose).unwrap();
+    }
+}
+
+/// The room scene's camera circling the furniture 2° a frame, then
+/// stopping and turning on the spot towards a wall ever faster (7.0°,
+/// 9.3°, 12.3° and 15.6° over its last four frames), tracked against the
+/// map it fuses, as `simulate --map tsdf --voxel 0.02 --track`
+/// does; per tracked frame, whether it was lost and how far it is off
+/// (metres).
+fn speeding_turn(seed: u64) -> Vec<(bool, f32)> {
+    use glam::Vec3;
+    let text = include_str!("../../../scenes/room.toml");
+    let scene = Scene::parse(text, "room.toml".as_ref(), &SceneOptions::default()).unwrap();
+    let around = |degrees: f32| {
+        let a = degrees.to_radians();
+        Vec3::new(2.0 * a.cos(), 1.3, 2.0 * a.sin())
+    };
+    let (centre, up) = (Vec3::new(0.0, 0.4, 0.0), Vec3::Y);
+    let mut poses: Vec<Pose> = (0..13)
+        .map(|i| Pose::look_at(around(2.0 * i as f32), centre, up))
+        .collect();
+    let eye = around(24.0);
+    let wall = Vec3::new(eye.x, 0.9, 3.0);
+    poses.extend((1..5).map(|k| Pose::look_at(eye, centre.lerp(wall, k as f32 / 10.0), up)));
+    let mut sensor = SimulatedSensor::kinect(NoiseModel::Kinect, seed);
+    let k = sensor.intrinsics;
+    let mut map = TsdfMapper::new(TsdfConfig::new(0.02), k, 0.8, 4.0).unwrap();
+    map.integrate(&sensor.capture(&scene, 1, &poses[0]), &poses[0])
+        .unwrap();
+    let mut tracker = Tracker::new(TrackerConfig::default(), k, poses[0]).unwrap();
+    let mut result = Vec::new();
+    for (i, pose) in poses.iter().enumerate().skip(1) {
+        let f = sensor.capture(&scene, i as u32 + 1, pose);
+        let t = tracker.track(&f.depth, &map);
+        result.push((
+            t.lost.is_some(),
+            pose.inverse().compose(&t.pose).translation.length(),
+        ));
+        if t.lost.is_none() {
+            map.integrate(&f, &t.pose).unwrap();
+        }
+    }
+    result
+}
+
+#[test]
+fn a_turn_that_speeds_up_is_followed_without_sliding() {
+    // A turn faster than the last one starts ICP centimetres off. With only
+    // the scheduled iterations (3 at half resolution, 1 at full) one of the
+    // last two frames was left 9.6–10.6 cm off, where the floor and a side
+    // wall fit it, on every seed 0–5 (on three, the last frame then 29–30
+    // cm), nothing reported lost. Going on until the update settles: at
+    // most 2 mm off on those seeds.
+    for seed in 0..3 {
+        for (frame, (lost, error)) in speeding_turn(seed).into_iter().enumerate() {
+            assert!(!lost, "seed {seed}, frame {} lost", frame + 2);
+            assert!(
+                error < 0.01,
+                "seed {seed}, frame {}: {:.1} mm off",
+                frame + 2,
+                error * 1e3
+            );
+        }
     }
 }
