@@ -9,6 +9,24 @@ use depthmesh::track::tracker::{Tracker, TrackerConfig, TrackerState};
 use depthmesh::tsdf::mapper::TsdfMapper;
 use depthmesh::tsdf::TsdfConfig;
 
+/// The Kinect with noise `seed`, a TSDF of `voxel` metres that has fused
+/// its first frame of `scene` (iteration 1) seen from `start`, and a
+/// tracker started there, as `simulate --map tsdf --track` starts.
+fn started(
+    scene: &Scene,
+    start: &Pose,
+    seed: u64,
+    voxel: f32,
+) -> (SimulatedSensor, TsdfMapper, Tracker) {
+    let mut sensor = SimulatedSensor::kinect(NoiseModel::Kinect, seed);
+    let k = sensor.intrinsics;
+    let mut map = TsdfMapper::new(TsdfConfig::new(voxel), k, 0.8, 4.0).unwrap();
+    map.integrate(&sensor.capture(scene, 1, start), start)
+        .unwrap();
+    let tracker = Tracker::new(TrackerConfig::default(), k, *start).unwrap();
+    (sensor, map, tracker)
+}
+
 /// The table scene's first frame (16 cm and 3.6° from the start, no
 /// measured motion) tracked against the map of the start's frame, for
 /// every one of `seeds`; the worst position error (metres).
@@ -18,12 +36,7 @@ fn first_frame_error(seeds: std::ops::Range<u64>) -> f32 {
     let poses = PathSpec::Helix.build(&scene, 200).unwrap();
     seeds
         .map(|seed| {
-            let mut sensor = SimulatedSensor::kinect(NoiseModel::Kinect, seed);
-            let k = sensor.intrinsics;
-            let mut map = TsdfMapper::new(TsdfConfig::new(0.01), k, 0.8, 4.0).unwrap();
-            map.integrate(&sensor.capture(&scene, 1, &poses[0]), &poses[0])
-                .unwrap();
-            let mut tracker = Tracker::new(TrackerConfig::default(), k, poses[0]).unwrap();
+            let (mut sensor, map, mut tracker) = started(&scene, &poses[0], seed, 0.01);
             let t = tracker.track(&sensor.capture(&scene, 2, &poses[1]).depth, &map);
             assert_eq!(t.lost, None, "seed {seed}");
             poses[1].inverse().compose(&t.pose).translation.length()
@@ -130,12 +143,7 @@ fn speeding_turn(seed: u64) -> Vec<(bool, f32)> {
     let eye = around(24.0);
     let wall = Vec3::new(eye.x, 0.9, 3.0);
     poses.extend((1..5).map(|k| Pose::look_at(eye, centre.lerp(wall, k as f32 / 10.0), up)));
-    let mut sensor = SimulatedSensor::kinect(NoiseModel::Kinect, seed);
-    let k = sensor.intrinsics;
-    let mut map = TsdfMapper::new(TsdfConfig::new(0.02), k, 0.8, 4.0).unwrap();
-    map.integrate(&sensor.capture(&scene, 1, &poses[0]), &poses[0])
-        .unwrap();
-    let mut tracker = Tracker::new(TrackerConfig::default(), k, poses[0]).unwrap();
+    let (mut sensor, mut map, mut tracker) = started(&scene, &poses[0], seed, 0.02);
     let mut result = Vec::new();
     for (i, pose) in poses.iter().enumerate().skip(1) {
         let f = sensor.capture(&scene, i as u32 + 1, pose);
