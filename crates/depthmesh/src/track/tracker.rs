@@ -114,7 +114,9 @@ const MAX_ITERATIONS: usize = 100;
 pub struct TrackerConfig {
     /// ICP iterations per level, coarsest first. The coarsest level runs
     /// only while the motion is not measured (the first frame, after a
-    /// loss), when the start may be far off.
+    /// loss), when the start may be far off. A coarser level of a followed
+    /// frame that has not settled by then goes on (see
+    /// [`TrackerConfig::settled`]).
     pub iterations: [usize; LEVELS],
     /// Associations farther apart are outliers (metres).
     pub max_distance: f32,
