@@ -5,8 +5,9 @@
 //! stream, every frame fused once. With the sensors' frames in folder
 //! order, the cluster's map equals `reconstruct`'s; a sensor without poses
 //! is tracked by a tracker worker, killed halfway too, and the map equals
-//! `reconstruct --track`'s; `serve --nats` shows the site's map to a viewer. Needs `nats-server`, so it is ignored by
-//! default; `.ci/cluster` installs it and runs it.
+//! `reconstruct --track`'s; `serve --nats` shows the site's map to a
+//! viewer. Needs `nats-server`, so it is ignored by default;
+//! `.ci/cluster` installs it and runs it.
 
 mod common;
 
@@ -326,11 +327,13 @@ fn a_sensor_without_poses_is_tracked_once_even_when_its_tracker_dies() {
         spawn(&args, &dir.join(format!("{name}.log")))
     };
     let mut trackers = vec![("t1", tracker("t1")), ("t2", tracker("t2"))];
-    let mut args = vec!["stream", f, "--track", "--sensor", "a", "--rate", "10"];
+    // Eight seconds of frames, so that the kill below lands mid-stream even
+    // when polling the status is slow on a loaded machine.
+    let mut args = vec!["stream", f, "--track", "--sensor", "a", "--rate", "5"];
     args.extend(site);
     let publisher = spawn(&args, &dir.join("a.log"));
     // Kill whichever tracker holds the sensor once ten tracked frames are
-    // on the stream (the sensor is then a quarter through its four seconds).
+    // on the stream (the sensor is then a quarter through).
     let deadline = Instant::now() + Duration::from_secs(30);
     let killed = loop {
         assert!(Instant::now() < deadline, "no tracker published frames");
@@ -349,14 +352,28 @@ fn a_sensor_without_poses_is_tracked_once_even_when_its_tracker_dies() {
         }
         std::thread::sleep(Duration::from_millis(100));
     };
+    let log = dir.join(format!(
+        "{}.log",
+        trackers.iter().find(|t| t.0 != killed).unwrap().0
+    ));
+    let said_before = std::fs::read_to_string(&log).unwrap().len();
     trackers.retain(|(name, _)| *name != killed);
+    // The survivor takes the sensor once the dead tracker's lease runs out,
+    // whether or not frames are still waiting for it.
+    let deadline = Instant::now() + Duration::from_secs(30);
+    loop {
+        let survivor = std::fs::read_to_string(&log).unwrap();
+        if survivor[said_before..].contains("tracking sensor a (frames up to Some(") {
+            break;
+        }
+        assert!(
+            Instant::now() < deadline,
+            "the survivor never took the sensor over: {survivor:?}"
+        );
+        std::thread::sleep(Duration::from_millis(100));
+    }
     assert!(finish(publisher, Duration::from_secs(60)).success());
     let (report, fetched) = fetch(&dir, url, "track");
-    let survivor = std::fs::read_to_string(dir.join(format!("{}.log", trackers[0].0))).unwrap();
-    assert!(
-        survivor.contains("tracking sensor a (frames up to Some("),
-        "{survivor}"
-    );
     let alone = assert_reconstruct_made(&dir, &frames, &["--track"], &fetched);
     assert_eq!(report["frames_lost"], alone["lost_frames"], "{report}");
     let lost = report["frames_lost"].as_u64().unwrap();
