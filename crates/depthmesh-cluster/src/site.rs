@@ -18,6 +18,7 @@ use depthmesh::tsdf::regions::Regions;
 use depthmesh::tsdf::TsdfConfig;
 use depthmesh::Intrinsics;
 use depthmesh_server::protocol::valid_session_name;
+use futures_util::TryStreamExt;
 use serde::{Deserialize, Serialize};
 use std::time::Duration;
 
@@ -355,6 +356,40 @@ impl Site {
             .map_err(|e| ClusterError::bus("cannot read the stream's state", e))?;
         Ok(info.state.last_sequence)
     }
+}
+
+/// The entries `store` holds now, key and value, deleted ones left out.
+///
+/// Listed from its stream's subjects in one request, then read one by one.
+/// `kv::Store::keys` instead runs a consumer that waits for every entry
+/// pending when it started, which can wait long for heartbeats that expire
+/// meanwhile (nats-server issue 3481), and the keeper and the status read
+/// the heartbeats often.
+pub async fn live_entries(store: &kv::Store) -> Result<Vec<(String, bytes::Bytes)>> {
+    let subjects: Vec<(String, usize)> = store
+        .stream
+        .info_with_subjects(format!("{}>", store.prefix))
+        .await
+        .map_err(|e| ClusterError::bus("cannot list a bucket's keys", e))?
+        .try_collect()
+        .await
+        .map_err(|e| ClusterError::bus("cannot list a bucket's keys", e))?;
+    let mut out = Vec::with_capacity(subjects.len());
+    for (subject, _) in subjects {
+        let Some(key) = subject.strip_prefix(store.prefix.as_str()) else {
+            continue;
+        };
+        let value = store
+            .get(key)
+            .await
+            .map_err(|e| ClusterError::bus("cannot read a bucket's entry", e))?;
+        // Gone since listed, or deleted (its marker keeps the subject).
+        if let Some(value) = value {
+            out.push((key.to_string(), value));
+        }
+    }
+    out.sort_by(|a, b| a.0.cmp(&b.0));
+    Ok(out)
 }
 
 /// A JetStream context on the bus at `url`.

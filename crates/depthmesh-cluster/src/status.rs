@@ -4,11 +4,10 @@
 use crate::checkpoint::{read_manifest, shard_key};
 use crate::error::{ClusterError, Result};
 use crate::fetch::{frames_by_sensor, SensorFrames};
-use crate::site::{Site, SiteConfig};
+use crate::site::{live_entries, Site, SiteConfig};
 use crate::tracker::TrackerBeat;
 use crate::worker::Heartbeat;
 use async_nats::jetstream::consumer::{pull, DeliverPolicy};
-use futures_util::TryStreamExt;
 use serde::Serialize;
 use std::collections::BTreeMap;
 use std::time::Duration;
@@ -121,24 +120,8 @@ pub async fn status(site: &Site) -> Result<Status> {
 
 /// The live fusion workers' and trackers' last heartbeats.
 pub(crate) async fn heartbeats(site: &Site) -> Result<(Vec<Heartbeat>, Vec<TrackerBeat>)> {
-    let keys: Vec<String> = site
-        .workers
-        .keys()
-        .await
-        .map_err(|e| ClusterError::bus("cannot list the workers", e))?
-        .try_collect()
-        .await
-        .map_err(|e| ClusterError::bus("cannot list the workers", e))?;
     let (mut out, mut trackers) = (Vec::new(), Vec::new());
-    for key in keys {
-        let Some(bytes) = site
-            .workers
-            .get(&key)
-            .await
-            .map_err(|e| ClusterError::bus("cannot read a heartbeat", e))?
-        else {
-            continue;
-        };
+    for (key, bytes) in live_entries(&site.workers).await? {
         if key.starts_with("tracker.") {
             trackers.extend(serde_json::from_slice::<TrackerBeat>(&bytes));
         } else {
