@@ -6,8 +6,9 @@
 //! order, the cluster's map equals `reconstruct`'s; a sensor without poses
 //! is tracked by a tracker worker, killed halfway too, and the map equals
 //! `reconstruct --track`'s; `serve --nats` shows the site's map to a
-//! viewer. Needs `nats-server`, so it is ignored by default;
-//! `.ci/cluster` installs it and runs it.
+//! viewer. A lease outlasts work that blocks longer than the lease time,
+//! and not a holder that stopped. Needs `nats-server`, so it is ignored by
+//! default; `.ci/cluster` installs it and runs it.
 
 mod common;
 
@@ -383,6 +384,45 @@ fn a_sensor_without_poses_is_tracked_once_even_when_its_tracker_dies() {
         "{report}"
     );
     drop((worker, trackers));
+}
+
+#[test]
+#[ignore = "needs nats-server: run by .ci/cluster"]
+fn a_lease_outlasts_work_longer_than_it_but_not_a_stalled_holder() {
+    use depthmesh_cluster::keeper::Keeper;
+    let dir = scratch("cluster-keeper");
+    let nats = NatsServer::start(&dir);
+    let ttl = Duration::from_millis(800);
+    let stall = Duration::from_secs(3);
+    let runtime = tokio::runtime::Runtime::new().unwrap();
+    runtime.block_on(async {
+        let site = depthmesh_cluster::Site::connect(&nats.url, "keep", Some(ttl))
+            .await
+            .unwrap();
+        let keeper = Keeper::start(&site, stall);
+        let revision = site.leases.create("shard.0", "a".into()).await.unwrap();
+        keeper.hold("shard.0".into(), b"a".to_vec(), revision).await;
+        // Work that blocks its thread for a lease time at a go, four times.
+        for _ in 0..4 {
+            tokio::task::block_in_place(|| std::thread::sleep(ttl));
+            keeper.alive();
+        }
+        let taken = site.leases.create("shard.0", "b".into()).await;
+        assert!(
+            taken.is_err(),
+            "another took the lease while its holder worked"
+        );
+        assert!(keeper.lost().await.is_empty());
+        // Then no progress at all: once the stall limit has passed, the
+        // lease runs out and another takes it.
+        let deadline = Instant::now() + stall + Duration::from_secs(20);
+        while site.leases.create("shard.0", "b".into()).await.is_err() {
+            assert!(Instant::now() < deadline, "a stalled holder kept its lease");
+            tokio::time::sleep(Duration::from_millis(100)).await;
+        }
+        tokio::time::sleep(ttl).await;
+        assert_eq!(keeper.lost().await, ["shard.0"]);
+    });
 }
 
 #[test]

@@ -20,6 +20,7 @@ pub mod error;
 pub mod fetch;
 pub mod frames;
 pub mod fuse;
+pub mod keeper;
 pub mod publish;
 pub mod site;
 pub mod status;

@@ -4,7 +4,8 @@
 //! tracked frame, unchanged but for its pose, on the sensor's posed
 //! subject for the fusion workers. A lost frame is not published.
 //!
-//! Each sensor has one tracker at a time, by a lease as shards have. A
+//! Each sensor has one tracker at a time, by a lease as shards have, kept
+//! by a [`Keeper`] so that a slow frame does not lose it. A
 //! tracker that takes a sensor over tracks it again from its first frame
 //! (tracking is deterministic, so it finds the poses its predecessor
 //! found) and publishes only the frames after the last one on the posed
@@ -14,8 +15,8 @@
 use crate::error::{ClusterError, Result};
 use crate::fetch::frames_by_sensor;
 use crate::frames::FrameReader;
+use crate::keeper::{Keeper, STALL};
 use crate::site::Site;
-use async_nats::jetstream::kv;
 use async_nats::jetstream::stream::RawMessageErrorKind;
 use async_nats::HeaderMap;
 use depthmesh::session::{Session, SessionConfig};
@@ -50,7 +51,7 @@ pub struct TrackerBeat {
     pub lost: u64,
     /// Frames published with their pose.
     pub published: u64,
-    /// Seconds since the Unix epoch when it was sent.
+    /// Seconds since the Unix epoch when its figures were taken.
     pub at: f64,
 }
 
@@ -93,8 +94,6 @@ fn lease_key(sensor: &str) -> String {
 /// A sensor being tracked.
 struct Tracking {
     sensor: String,
-    lease_revision: u64,
-    renewed: Instant,
     session: Session,
     /// Depths kept, metres (the site's range).
     range: (f32, f32),
@@ -117,34 +116,31 @@ pub async fn run(site: &Site, options: &TrackerOptions, stop: &AtomicBool) -> Re
         ..TrackerBeat::default()
     };
     let mut tracking: Option<Tracking> = None;
+    let keeper = Keeper::start(site, STALL);
     let mut next_beat = Instant::now();
     while !stop.load(Ordering::Relaxed) {
+        keeper.alive();
         if Instant::now() >= next_beat {
             site.refresh_lease().await?;
             next_beat = Instant::now() + site.lease_ttl / 4;
-            if let Some(t) = &mut tracking {
-                if !renew(site, t).await? {
-                    eprintln!("tracker {}: lease of sensor {} lost", options.id, t.sensor);
-                    tracking = None;
-                }
+            let lost = keeper.lost().await;
+            if let Some(t) = tracking.take_if(|t| lost.contains(&lease_key(&t.sensor))) {
+                eprintln!("tracker {}: lease of sensor {} lost", options.id, t.sensor);
             }
             if tracking.is_none() {
-                tracking = claim(site, options).await?;
+                tracking = claim(site, options, &keeper).await?;
             }
             beat.sensor = tracking.as_ref().map(|t| t.sensor.clone());
             beat.at = SystemTime::now()
                 .duration_since(UNIX_EPOCH)
                 .map_or(0.0, |d| d.as_secs_f64());
             let bytes = serde_json::to_vec(&beat).expect("heartbeat serialises");
-            site.workers
-                .put(beat_key(&options.id), bytes.into())
-                .await
-                .map_err(|e| ClusterError::bus("cannot send a heartbeat", e))?;
+            keeper.beat(site, beat_key(&options.id), bytes).await?;
         }
         let Some(t) = &mut tracking else {
             // Look for work again soon, not only at the next heartbeat.
             tokio::time::sleep(Duration::from_millis(200)).await;
-            tracking = claim(site, options).await?;
+            tracking = claim(site, options, &keeper).await?;
             continue;
         };
         if !step(site, t, &mut reader, &mut beat).await? {
@@ -160,35 +156,20 @@ pub async fn run(site: &Site, options: &TrackerOptions, stop: &AtomicBool) -> Re
         }
     }
     if let Some(t) = tracking {
-        let _ = site
-            .leases
-            .delete_expect_revision(lease_key(&t.sensor), Some(t.lease_revision))
-            .await;
+        let key = lease_key(&t.sensor);
+        if let Some(revision) = keeper.release(&key).await {
+            let _ = site
+                .leases
+                .delete_expect_revision(key, Some(revision))
+                .await;
+        }
     }
-    let _ = site.workers.delete(beat_key(&options.id)).await;
+    keeper.end_beat(site, &beat_key(&options.id)).await;
     Ok(())
 }
 
-/// Renews the lease; `false` when it is gone.
-async fn renew(site: &Site, t: &mut Tracking) -> Result<bool> {
-    let key = lease_key(&t.sensor);
-    match site
-        .leases
-        .update(&key, t.sensor.clone().into(), t.lease_revision)
-        .await
-    {
-        Ok(r) => {
-            t.lease_revision = r;
-            t.renewed = Instant::now();
-            Ok(true)
-        }
-        Err(e) if e.kind() == kv::UpdateErrorKind::WrongLastRevision => Ok(false),
-        Err(_) => Ok(t.renewed.elapsed() < site.lease_ttl),
-    }
-}
-
 /// Takes a sensor that publishes frames without poses and has no tracker.
-async fn claim(site: &Site, options: &TrackerOptions) -> Result<Option<Tracking>> {
+async fn claim(site: &Site, options: &TrackerOptions, keeper: &Keeper) -> Result<Option<Tracking>> {
     let config = match site.config().await? {
         Some(c) => c,
         None => return Ok(None),
@@ -204,6 +185,10 @@ async fn claim(site: &Site, options: &TrackerOptions) -> Result<Option<Tracking>
         else {
             continue;
         };
+        let key = lease_key(&sensor);
+        keeper
+            .hold(key, sensor.clone().into_bytes(), lease_revision)
+            .await;
         let camera = site.sensor(&sensor).await?.ok_or_else(|| {
             ClusterError::site(&site.name, format!("sensor {sensor} published no camera"))
         })?;
@@ -219,8 +204,6 @@ async fn claim(site: &Site, options: &TrackerOptions) -> Result<Option<Tracking>
         );
         return Ok(Some(Tracking {
             sensor,
-            lease_revision,
-            renewed: Instant::now(),
             session,
             range: (config.depth_min, config.depth_max),
             next: 1,

@@ -11,21 +11,21 @@
 //! from its last checkpoint and continues after it, so every frame is fused
 //! into every shard exactly once, whoever owned it when.
 //!
-//! Every quarter of the lease time the worker renews its leases (a lease it
-//! cannot renew is given up at once: another worker may have it), says it
-//! is alive, and balances: it takes unowned shards while it has fewer than
-//! its share (all shards over the live workers, rounded up), and gives
-//! those above it back, checkpointed.
+//! Its leases are renewed by a [`Keeper`], apart from the fusing, so a long
+//! frame does not lose them; a lease the keeper finds gone or another's is
+//! given up at once (another worker may have it). Every quarter of the
+//! lease time the worker says it is alive and balances: it takes unowned
+//! shards while it has fewer than its share (all shards over the live
+//! workers, rounded up), and gives those above it back, checkpointed.
 
 use crate::checkpoint::{
     commit, encode_segment, load_shard, read_manifest, shard_key, write_segment, Manifest,
 };
-use crate::error::{ClusterError, Result};
+use crate::error::Result;
 use crate::fuse::{FuseTimes, Fused, Fuser, StreamReader};
-use crate::site::Site;
-use async_nats::jetstream::kv;
+use crate::keeper::{Keeper, STALL};
+use crate::site::{live_entries, Site};
 use depthmesh::tsdf::regions::Regions;
-use futures_util::TryStreamExt;
 use glam::IVec3;
 use serde::{Deserialize, Serialize};
 use std::sync::atomic::{AtomicBool, Ordering};
@@ -62,7 +62,7 @@ pub struct Heartbeat {
     pub fuse_seconds: FuseTimes,
     /// Seconds spent writing checkpoints since it started.
     pub checkpoint_seconds: f64,
-    /// Seconds since the Unix epoch when it was sent.
+    /// Seconds since the Unix epoch when its figures were taken.
     pub at: f64,
 }
 
@@ -74,8 +74,6 @@ struct Owned {
     /// Posed frames fused into it and frames rejected, all told.
     frames: u64,
     rejected: u64,
-    lease_revision: u64,
-    renewed: Instant,
     /// The last committed checkpoint and its revision.
     manifest: Manifest,
     manifest_revision: Option<u64>,
@@ -100,6 +98,7 @@ struct Worker<'a> {
     regions: Regions,
     fuser: Fuser,
     owned: Vec<Owned>,
+    keeper: Keeper,
     /// Messages read since start and at the last heartbeat, checkpoints made.
     frames: u64,
     frames_at_beat: u64,
@@ -118,6 +117,7 @@ pub async fn run(site: &Site, options: &WorkerOptions, stop: &AtomicBool) -> Res
         regions: config.regions,
         fuser: Fuser::new(config)?,
         owned: Vec::new(),
+        keeper: Keeper::start(site, STALL),
         frames: 0,
         frames_at_beat: 0,
         beat_at: Instant::now(),
@@ -128,6 +128,7 @@ pub async fn run(site: &Site, options: &WorkerOptions, stop: &AtomicBool) -> Res
     let mut last = site.last_seq().await?;
     let mut next_beat = Instant::now();
     while !stop.load(Ordering::Relaxed) {
+        w.keeper.alive();
         let beat_every = w.site.lease_ttl / 4;
         if Instant::now() >= next_beat {
             w.heartbeat().await?;
@@ -290,23 +291,32 @@ impl Worker<'_> {
                     self.options.id
                 );
                 let _ = self.site.checkpoints.delete(&name).await;
-                self.forget(shard);
+                self.forget(shard).await;
             }
         }
         Ok(())
     }
 
-    /// Drops `shard` and its blocks without saving anything.
-    fn forget(&mut self, shard: u32) {
+    /// Drops `shard` and its blocks without saving anything, and stops
+    /// renewing its lease.
+    async fn forget(&mut self, shard: u32) {
+        self.keeper.release(&shard_key(shard)).await;
         let keys = self.shard_blocks(shard);
         self.fuser.volume.remove_blocks(&keys);
         self.owned.retain(|o| o.shard != shard);
     }
 
-    /// Renews leases, says this worker is alive, balances shards.
+    /// Gives up the shards whose leases were lost, says this worker is
+    /// alive, balances shards.
     async fn heartbeat(&mut self) -> Result<()> {
         self.site.refresh_lease().await?;
-        self.renew().await?;
+        for key in self.keeper.lost().await {
+            if let Some(o) = self.owned.iter().find(|o| shard_key(o.shard) == key) {
+                let shard = o.shard;
+                eprintln!("worker {}: lease of shard {shard} lost", self.options.id);
+                self.forget(shard).await;
+            }
+        }
         let now = Instant::now();
         let seconds = now.duration_since(self.beat_at).as_secs_f64().max(1e-3);
         let frames_per_second = (self.frames - self.frames_at_beat) as f64 / seconds;
@@ -338,41 +348,9 @@ impl Worker<'_> {
                 .map_or(0.0, |d| d.as_secs_f64()),
         };
         let bytes = serde_json::to_vec(&beat).expect("heartbeat serialises");
-        self.site
-            .workers
-            .put(&self.options.id, bytes.into())
+        self.keeper
+            .beat(&self.site, self.options.id.clone(), bytes)
             .await
-            .map(|_| ())
-            .map_err(|e| ClusterError::bus("cannot send a heartbeat", e))
-    }
-
-    /// Renews every lease; gives up a shard whose lease is gone or
-    /// another's, or was not renewed within the lease time.
-    async fn renew(&mut self) -> Result<()> {
-        let ttl = self.site.lease_ttl;
-        let mut lost = Vec::new();
-        for o in &mut self.owned {
-            let key = shard_key(o.shard);
-            match self
-                .site
-                .leases
-                .update(&key, self.options.id.clone().into(), o.lease_revision)
-                .await
-            {
-                Ok(r) => {
-                    o.lease_revision = r;
-                    o.renewed = Instant::now();
-                }
-                Err(e) if e.kind() == kv::UpdateErrorKind::WrongLastRevision => lost.push(o.shard),
-                Err(_) if o.renewed.elapsed() >= ttl => lost.push(o.shard),
-                Err(_) => {}
-            }
-        }
-        for shard in lost {
-            eprintln!("worker {}: lease of shard {shard} lost", self.options.id);
-            self.forget(shard);
-        }
-        Ok(())
     }
 
     /// Takes free shards up to this worker's share, or gives one back above it.
@@ -403,7 +381,10 @@ impl Worker<'_> {
                 .create(shard_key(s), self.options.id.clone().into())
                 .await
             {
-                self.take(s, revision).await?;
+                // Kept from now: loading a large shard may outlast the lease.
+                let id = self.options.id.clone().into_bytes();
+                self.keeper.hold(shard_key(s), id, revision).await;
+                self.take(s).await?;
             }
         }
         Ok(())
@@ -411,21 +392,15 @@ impl Worker<'_> {
 
     /// Fusion workers whose heartbeats have not expired.
     async fn live_workers(&self) -> Result<u32> {
-        let keys = self
-            .site
-            .workers
-            .keys()
-            .await
-            .map_err(|e| ClusterError::bus("cannot list the workers", e))?;
-        let keys: Vec<String> = keys
-            .try_collect()
-            .await
-            .map_err(|e| ClusterError::bus("cannot list the workers", e))?;
-        Ok(keys.iter().filter(|k| !k.starts_with("tracker.")).count() as u32)
+        let beats = live_entries(&self.site.workers).await?;
+        Ok(beats
+            .iter()
+            .filter(|(k, _)| !k.starts_with("tracker."))
+            .count() as u32)
     }
 
     /// Loads `shard` from its last checkpoint, now that its lease is ours.
-    async fn take(&mut self, shard: u32, lease_revision: u64) -> Result<()> {
+    async fn take(&mut self, shard: u32) -> Result<()> {
         let (manifest, manifest_revision) = match read_manifest(&self.site, shard).await? {
             Some((m, r)) => (m, Some(r)),
             None => (Manifest::default(), None),
@@ -443,8 +418,6 @@ impl Worker<'_> {
             next: manifest.seq + 1,
             frames: manifest.frames,
             rejected: manifest.rejected,
-            lease_revision,
-            renewed: Instant::now(),
             manifest,
             manifest_revision,
             saved_at: self.fuser.volume.frames(),
@@ -460,13 +433,15 @@ impl Worker<'_> {
         if o.unsaved() {
             self.checkpoint(shard).await?;
         }
-        if let Some(o) = self.owned.iter().find(|o| o.shard == shard) {
-            let _ = self
-                .site
-                .leases
-                .delete_expect_revision(shard_key(shard), Some(o.lease_revision))
-                .await;
-            self.forget(shard);
+        if self.owned.iter().any(|o| o.shard == shard) {
+            if let Some(revision) = self.keeper.release(&shard_key(shard)).await {
+                let _ = self
+                    .site
+                    .leases
+                    .delete_expect_revision(shard_key(shard), Some(revision))
+                    .await;
+            }
+            self.forget(shard).await;
         }
         Ok(())
     }
@@ -477,7 +452,7 @@ impl Worker<'_> {
         for shard in shards {
             self.release(shard).await?;
         }
-        let _ = self.site.workers.delete(&self.options.id).await;
+        self.keeper.end_beat(&self.site, &self.options.id).await;
         Ok(())
     }
 }
