@@ -7,7 +7,8 @@
 //! is tracked by a tracker worker, killed halfway too, and the map equals
 //! `reconstruct --track`'s; `serve --nats` shows the site's map to a
 //! viewer. A lease outlasts work that blocks longer than the lease time,
-//! and not a holder that stopped. Needs `nats-server`, so it is ignored by
+//! and not a holder that stopped; a worker stopped once the bus is gone
+//! exits, saying so. Needs `nats-server`, so it is ignored by
 //! default; `.ci/cluster` installs it and runs it.
 
 mod common;
@@ -423,6 +424,48 @@ fn a_lease_outlasts_work_longer_than_it_but_not_a_stalled_holder() {
         tokio::time::sleep(ttl).await;
         assert_eq!(keeper.lost().await, ["shard.0"]);
     });
+}
+
+#[test]
+#[ignore = "needs nats-server: run by .ci/cluster"]
+fn a_worker_stopped_with_the_bus_gone_gives_up_saying_so() {
+    let (dir, frames, nats) = setup("cluster-bus-gone", 4);
+    let url = nats.url.clone();
+    let log = dir.join("w1.log");
+    let worker = spawn(
+        &[
+            "cluster", "worker", "--nats", &url, "--site", "gone", "--name", "w1",
+        ],
+        &log,
+    );
+    ok(&depthmesh(&[
+        "stream",
+        frames.to_str().unwrap(),
+        "--nats",
+        &url,
+        "--site",
+        "gone",
+        "--sensor",
+        "a",
+        "--rate",
+        "max",
+        "--quiet",
+    ]));
+    fetch(&dir, &url, "gone");
+    // Both at once, as a machine shutting down stops them: the worker then
+    // gives its shards back to a bus that is no longer there, and must not
+    // wait on each request's timeout, shard after shard.
+    let pids = [worker.0.id().to_string(), nats.pid().to_string()];
+    assert!(Command::new("kill")
+        .arg("-TERM")
+        .args(&pids)
+        .status()
+        .unwrap()
+        .success());
+    let status = finish(worker, Duration::from_secs(40));
+    assert!(!status.success());
+    let said = std::fs::read_to_string(&log).unwrap();
+    assert!(said.contains("could not hand the shards over"), "{said}");
 }
 
 #[test]

@@ -21,7 +21,7 @@
 use crate::checkpoint::{
     commit, encode_segment, load_shard, read_manifest, shard_key, write_segment, Manifest,
 };
-use crate::error::Result;
+use crate::error::{ClusterError, Result};
 use crate::fuse::{FuseTimes, Fused, Fuser, StreamReader};
 use crate::keeper::{Keeper, STALL};
 use crate::site::{live_entries, Site};
@@ -34,6 +34,10 @@ use std::time::{Duration, Instant, SystemTime, UNIX_EPOCH};
 /// A shard's checkpoints are rewritten whole (the older segments deleted)
 /// once it has this many: loading a shard then reads at most this many.
 const MAX_SEGMENTS: usize = 8;
+
+/// How long a stopping worker may take to checkpoint its shards and give
+/// them back.
+const HANDOVER: Duration = Duration::from_secs(20);
 
 /// How a worker runs.
 #[derive(Clone, Debug)]
@@ -149,7 +153,19 @@ pub async fn run(site: &Site, options: &WorkerOptions, stop: &AtomicBool) -> Res
         let msg = reader.get(at, last).await?;
         w.fuse_at(at, msg).await?;
     }
-    w.release_all().await
+    // With the bus gone, each checkpoint would wait out its requests'
+    // timeouts, shard after shard, for minutes: give up instead. Nothing
+    // is lost: the shards' leases expire and their next owners resume from
+    // the last checkpoints.
+    tokio::time::timeout(HANDOVER, w.release_all())
+        .await
+        .unwrap_or_else(|_| {
+            Err(ClusterError::Bus(format!(
+                "could not hand the shards over within {} s; they are taken over \
+                 from their last checkpoints once their leases expire",
+                HANDOVER.as_secs()
+            )))
+        })
 }
 
 impl Worker<'_> {

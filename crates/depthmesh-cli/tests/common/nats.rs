@@ -71,6 +71,14 @@ fn binary() -> std::path::PathBuf {
         .unwrap_or_else(|| "nats-server".into())
 }
 
+impl NatsServer {
+    /// The server's process id.
+    #[allow(dead_code)] // not every test file stops it by a signal
+    pub fn pid(&self) -> u32 {
+        self.child.id()
+    }
+}
+
 impl Drop for NatsServer {
     fn drop(&mut self) {
         let _ = self.child.kill();
