@@ -24,9 +24,15 @@ use tokio::task::JoinHandle;
 /// progressed before its leases are left to expire.
 pub const STALL: Duration = Duration::from_secs(30);
 
+/// How long a stopping worker or tracker may take to give its leases back
+/// (a worker checkpoints its shards first). With the bus gone each request
+/// would wait out its timeout, one after another, for minutes; past this
+/// the process exits and its leases expire instead.
+pub const HANDOVER: Duration = Duration::from_secs(20);
+
 /// One lease held.
 struct Lease {
-    /// What a renewal writes (the holder's name).
+    /// What a renewal writes (a worker's name, a tracker's sensor).
     value: Vec<u8>,
     revision: u64,
     renewed: Instant,
@@ -36,7 +42,8 @@ struct Lease {
 #[derive(Default)]
 struct Held {
     leases: BTreeMap<String, Lease>,
-    /// Keys whose lease was found gone or another's, not yet told.
+    /// Keys whose lease was found another's, or not renewed within the
+    /// lease time (the bus unreachable, the work stalled), not yet told.
     lost: Vec<String>,
     /// The holder's last heartbeat (bucket `workers`), put again each round.
     beat: Option<(String, Vec<u8>)>,
@@ -131,45 +138,53 @@ async fn keep(
     stall: Duration,
 ) {
     loop {
-        tokio::time::sleep(site.lease_ttl / 4).await;
-        // Another worker's --lease-seconds may have changed it; a failed
-        // read keeps the last.
+        // Read before sleeping: another process's --lease-seconds may have
+        // shortened it since this one connected. A failed read keeps the last.
         let _ = site.refresh_lease().await;
         let ttl = site.lease_ttl;
+        tokio::time::sleep(ttl / 4).await;
         let stalled = progress.lock().expect("progress lock").elapsed() >= stall.max(ttl);
         let mut h = held.lock().await;
         let h = &mut *h;
-        let mut lost = Vec::new();
-        for (key, lease) in &mut h.leases {
-            if stalled {
-                if lease.renewed.elapsed() >= ttl {
-                    lost.push(key.clone());
-                }
-                continue;
-            }
-            match site
+        // All at once, each given at most a round: renewing many shards one
+        // after another on a slow bus could outlast the lease, and the lock
+        // (which keeps a release from racing a renewal) is held meanwhile.
+        let renewals = h.leases.iter().filter(|_| !stalled).map(|(key, lease)| {
+            let update = site
                 .leases
-                .update(key, lease.value.clone().into(), lease.revision)
-                .await
-            {
-                Ok(r) => {
+                .update(key, lease.value.clone().into(), lease.revision);
+            async move { (key.clone(), tokio::time::timeout(ttl / 4, update).await) }
+        });
+        let renewed = futures_util::future::join_all(renewals).await;
+        let mut lost = Vec::new();
+        for (key, outcome) in renewed {
+            let lease = h.leases.get_mut(&key).expect("held while renewing");
+            match outcome {
+                Ok(Ok(r)) => {
                     lease.revision = r;
                     lease.renewed = Instant::now();
                 }
-                Err(e) if e.kind() == kv::UpdateErrorKind::WrongLastRevision => {
-                    lost.push(key.clone())
-                }
+                Ok(Err(e)) if e.kind() == kv::UpdateErrorKind::WrongLastRevision => lost.push(key),
                 // The bus may be back before the lease runs out.
-                Err(_) if lease.renewed.elapsed() >= ttl => lost.push(key.clone()),
-                Err(_) => {}
+                _ if lease.renewed.elapsed() >= ttl => lost.push(key),
+                _ => {}
             }
+        }
+        if stalled {
+            lost.extend(
+                h.leases
+                    .iter()
+                    .filter(|(_, l)| l.renewed.elapsed() >= ttl)
+                    .map(|(k, _)| k.clone()),
+            );
         }
         for key in lost {
             h.leases.remove(&key);
             h.lost.push(key);
         }
         if let (false, Some((key, value))) = (stalled, &h.beat) {
-            let _ = site.workers.put(key, value.clone().into()).await;
+            let _ =
+                tokio::time::timeout(ttl / 4, site.workers.put(key, value.clone().into())).await;
         }
     }
 }

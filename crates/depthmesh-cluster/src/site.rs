@@ -363,8 +363,8 @@ impl Site {
 /// Listed from its stream's subjects in one request, then read one by one.
 /// `kv::Store::keys` instead runs a consumer that waits for every entry
 /// pending when it started, which can wait long for heartbeats that expire
-/// meanwhile (nats-server issue 3481), and the keeper and the status read
-/// the heartbeats often.
+/// meanwhile (nats-server issue 3481), and workers balancing, the status
+/// and the browser view read the heartbeats often.
 pub async fn live_entries(store: &kv::Store) -> Result<Vec<(String, bytes::Bytes)>> {
     let subjects: Vec<(String, usize)> = store
         .stream

@@ -15,7 +15,7 @@
 use crate::error::{ClusterError, Result};
 use crate::fetch::frames_by_sensor;
 use crate::frames::FrameReader;
-use crate::keeper::{Keeper, STALL};
+use crate::keeper::{Keeper, HANDOVER, STALL};
 use crate::site::Site;
 use async_nats::jetstream::stream::RawMessageErrorKind;
 use async_nats::HeaderMap;
@@ -120,13 +120,14 @@ pub async fn run(site: &Site, options: &TrackerOptions, stop: &AtomicBool) -> Re
     let mut next_beat = Instant::now();
     while !stop.load(Ordering::Relaxed) {
         keeper.alive();
+        // Before the next frame: another tracker may have the sensor.
+        let lost = keeper.lost().await;
+        if let Some(t) = tracking.take_if(|t| lost.contains(&lease_key(&t.sensor))) {
+            eprintln!("tracker {}: lease of sensor {} lost", options.id, t.sensor);
+        }
         if Instant::now() >= next_beat {
             site.refresh_lease().await?;
             next_beat = Instant::now() + site.lease_ttl / 4;
-            let lost = keeper.lost().await;
-            if let Some(t) = tracking.take_if(|t| lost.contains(&lease_key(&t.sensor))) {
-                eprintln!("tracker {}: lease of sensor {} lost", options.id, t.sensor);
-            }
             if tracking.is_none() {
                 tracking = claim(site, options, &keeper).await?;
             }
@@ -155,16 +156,20 @@ pub async fn run(site: &Site, options: &TrackerOptions, stop: &AtomicBool) -> Re
             tokio::time::sleep(Duration::from_millis(20)).await;
         }
     }
-    if let Some(t) = tracking {
-        let key = lease_key(&t.sensor);
-        if let Some(revision) = keeper.release(&key).await {
-            let _ = site
-                .leases
-                .delete_expect_revision(key, Some(revision))
-                .await;
+    let handover = async {
+        if let Some(t) = tracking {
+            let key = lease_key(&t.sensor);
+            if let Some(revision) = keeper.release(&key).await {
+                let _ = site
+                    .leases
+                    .delete_expect_revision(key, Some(revision))
+                    .await;
+            }
         }
-    }
-    keeper.end_beat(site, &beat_key(&options.id)).await;
+        keeper.end_beat(site, &beat_key(&options.id)).await;
+    };
+    // Past the limit (the bus gone) the lease expires instead.
+    let _ = tokio::time::timeout(HANDOVER, handover).await;
     Ok(())
 }
 

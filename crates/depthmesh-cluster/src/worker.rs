@@ -12,8 +12,8 @@
 //! into every shard exactly once, whoever owned it when.
 //!
 //! Its leases are renewed by a [`Keeper`], apart from the fusing, so a long
-//! frame does not lose them; a lease the keeper finds gone or another's is
-//! given up at once (another worker may have it). Every quarter of the
+//! frame does not lose them; a lease the keeper reports lost is given up
+//! before the next frame (another worker may have it). Every quarter of the
 //! lease time the worker says it is alive and balances: it takes unowned
 //! shards while it has fewer than its share (all shards over the live
 //! workers, rounded up), and gives those above it back, checkpointed.
@@ -23,7 +23,7 @@ use crate::checkpoint::{
 };
 use crate::error::{ClusterError, Result};
 use crate::fuse::{FuseTimes, Fused, Fuser, StreamReader};
-use crate::keeper::{Keeper, STALL};
+use crate::keeper::{Keeper, HANDOVER, STALL};
 use crate::site::{live_entries, Site};
 use depthmesh::tsdf::regions::Regions;
 use glam::IVec3;
@@ -34,10 +34,6 @@ use std::time::{Duration, Instant, SystemTime, UNIX_EPOCH};
 /// A shard's checkpoints are rewritten whole (the older segments deleted)
 /// once it has this many: loading a shard then reads at most this many.
 const MAX_SEGMENTS: usize = 8;
-
-/// How long a stopping worker may take to checkpoint its shards and give
-/// them back.
-const HANDOVER: Duration = Duration::from_secs(20);
 
 /// How a worker runs.
 #[derive(Clone, Debug)]
@@ -131,32 +127,40 @@ pub async fn run(site: &Site, options: &WorkerOptions, stop: &AtomicBool) -> Res
     let mut reader = StreamReader::new(site);
     let mut last = site.last_seq().await?;
     let mut next_beat = Instant::now();
-    while !stop.load(Ordering::Relaxed) {
-        w.keeper.alive();
-        let beat_every = w.site.lease_ttl / 4;
-        if Instant::now() >= next_beat {
-            w.heartbeat().await?;
-            next_beat = Instant::now() + w.site.lease_ttl / 4;
-        }
-        let Some(at) = w.owned.iter().map(|o| o.next).min() else {
-            tokio::time::sleep(beat_every.min(Duration::from_millis(200))).await;
-            continue;
-        };
-        if at > last {
-            last = site.last_seq().await?;
-            if at > last {
-                w.save_unsaved().await?;
-                tokio::time::sleep(Duration::from_millis(20)).await;
-                continue;
+    let worked: Result<()> = async {
+        while !stop.load(Ordering::Relaxed) {
+            w.keeper.alive();
+            w.drop_lost().await;
+            let beat_every = w.site.lease_ttl / 4;
+            if Instant::now() >= next_beat {
+                w.heartbeat().await?;
+                next_beat = Instant::now() + w.site.lease_ttl / 4;
             }
+            let Some(at) = w.owned.iter().map(|o| o.next).min() else {
+                tokio::time::sleep(beat_every.min(Duration::from_millis(200))).await;
+                continue;
+            };
+            if at > last {
+                last = site.last_seq().await?;
+                if at > last {
+                    w.save_unsaved().await?;
+                    tokio::time::sleep(Duration::from_millis(20)).await;
+                    continue;
+                }
+            }
+            let msg = reader.get(at, last).await?;
+            w.fuse_at(at, msg).await?;
         }
-        let msg = reader.get(at, last).await?;
-        w.fuse_at(at, msg).await?;
+        Ok(())
     }
-    // With the bus gone, each checkpoint would wait out its requests'
-    // timeouts, shard after shard, for minutes: give up instead. Nothing
-    // is lost: the shards' leases expire and their next owners resume from
-    // the last checkpoints.
+    .await;
+    // Told to stop, a worker whose last request failed (the bus going
+    // down with the machine) still tries to hand its shards over.
+    if worked.is_err() && !stop.load(Ordering::Relaxed) {
+        return worked;
+    }
+    // Past the limit nothing is lost: the shards' leases expire and their
+    // next owners resume from the last checkpoints.
     tokio::time::timeout(HANDOVER, w.release_all())
         .await
         .unwrap_or_else(|_| {
@@ -239,6 +243,8 @@ impl Worker<'_> {
         let start = Instant::now();
         let done = self.commit_checkpoint(shard).await;
         self.checkpoint_seconds += start.elapsed().as_secs_f64();
+        // Many checkpoints in a row are progress too, for the keeper.
+        self.keeper.alive();
         done
     }
 
@@ -322,10 +328,9 @@ impl Worker<'_> {
         self.owned.retain(|o| o.shard != shard);
     }
 
-    /// Gives up the shards whose leases were lost, says this worker is
-    /// alive, balances shards.
-    async fn heartbeat(&mut self) -> Result<()> {
-        self.site.refresh_lease().await?;
+    /// Gives up, at once, the shards whose leases the keeper found lost:
+    /// another worker may have them.
+    async fn drop_lost(&mut self) {
         for key in self.keeper.lost().await {
             if let Some(o) = self.owned.iter().find(|o| shard_key(o.shard) == key) {
                 let shard = o.shard;
@@ -333,6 +338,11 @@ impl Worker<'_> {
                 self.forget(shard).await;
             }
         }
+    }
+
+    /// Says this worker is alive, balances shards.
+    async fn heartbeat(&mut self) -> Result<()> {
+        self.site.refresh_lease().await?;
         let now = Instant::now();
         let seconds = now.duration_since(self.beat_at).as_secs_f64().max(1e-3);
         let frames_per_second = (self.frames - self.frames_at_beat) as f64 / seconds;
@@ -425,6 +435,8 @@ impl Worker<'_> {
         self.fuser
             .volume
             .restore(blocks.into_values().collect(), 0)?;
+        // Loading many shards in a row is progress too, for the keeper.
+        self.keeper.alive();
         eprintln!(
             "worker {}: took shard {shard} at message {} ({} frames fused)",
             self.options.id, manifest.seq, manifest.frames
