@@ -452,16 +452,15 @@ fn a_worker_stopped_with_the_bus_gone_gives_up_saying_so() {
         "--quiet",
     ]));
     fetch(&dir, &url, "gone");
-    // Both at once, as a machine shutting down stops them: the worker then
-    // gives its shards back to a bus that is no longer there, and must not
-    // wait on each request's timeout, shard after shard.
-    let pids = [worker.0.id().to_string(), nats.pid().to_string()];
-    assert!(Command::new("kill")
-        .arg("-TERM")
-        .args(&pids)
-        .status()
-        .unwrap()
-        .success());
+    // The bus frozen first (every request then waits out its timeout),
+    // then the worker told to stop: it gives its shards back to a bus that
+    // does not answer, and must not wait on each request, shard after shard.
+    let signal = |sig: &str, pid: u32| {
+        let sent = Command::new("kill").args([sig, &pid.to_string()]).status();
+        assert!(sent.unwrap().success());
+    };
+    signal("-STOP", nats.pid());
+    signal("-TERM", worker.0.id());
     let status = finish(worker, Duration::from_secs(40));
     assert!(!status.success());
     let said = std::fs::read_to_string(&log).unwrap();
