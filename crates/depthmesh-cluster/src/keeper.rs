@@ -15,6 +15,7 @@
 use crate::site::Site;
 use async_nats::jetstream::kv;
 use std::collections::BTreeMap;
+use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::{Arc, Mutex as SyncMutex};
 use std::time::{Duration, Instant};
 use tokio::sync::Mutex;
@@ -53,6 +54,9 @@ struct Held {
 /// its own until dropped.
 pub struct Keeper {
     held: Arc<Mutex<Held>>,
+    /// Set with `Held::lost`, so that asking after every frame takes no
+    /// lock (a round holds it while renewing).
+    any_lost: Arc<AtomicBool>,
     progress: Arc<SyncMutex<Instant>>,
     task: JoinHandle<()>,
 }
@@ -63,10 +67,18 @@ impl Keeper {
     /// within the lease time when that is longer.
     pub fn start(site: &Site, stall: Duration) -> Keeper {
         let held = Arc::new(Mutex::new(Held::default()));
+        let any_lost = Arc::new(AtomicBool::new(false));
         let progress = Arc::new(SyncMutex::new(Instant::now()));
-        let task = tokio::spawn(keep(site.clone(), held.clone(), progress.clone(), stall));
+        let task = tokio::spawn(keep(
+            site.clone(),
+            held.clone(),
+            any_lost.clone(),
+            progress.clone(),
+            stall,
+        ));
         Keeper {
             held,
+            any_lost,
             progress,
             task,
         }
@@ -97,8 +109,22 @@ impl Keeper {
             .map(|l| l.revision)
     }
 
+    /// Stops keeping `key` and deletes it, so that another may take it
+    /// now rather than when it expires.
+    pub async fn give_back(&self, site: &Site, key: &str) {
+        if let Some(revision) = self.release(key).await {
+            let _ = site
+                .leases
+                .delete_expect_revision(key, Some(revision))
+                .await;
+        }
+    }
+
     /// The leases lost since last asked (they are no longer kept).
     pub async fn lost(&self) -> Vec<String> {
+        if !self.any_lost.swap(false, Ordering::AcqRel) {
+            return Vec::new();
+        }
         std::mem::take(&mut self.held.lock().await.lost)
     }
 
@@ -134,6 +160,7 @@ impl Drop for Keeper {
 async fn keep(
     mut site: Site,
     held: Arc<Mutex<Held>>,
+    any_lost: Arc<AtomicBool>,
     progress: Arc<SyncMutex<Instant>>,
     stall: Duration,
 ) {
@@ -181,6 +208,8 @@ async fn keep(
         for key in lost {
             h.leases.remove(&key);
             h.lost.push(key);
+            // Under the lock, after the push: `lost()` drains under it too.
+            any_lost.store(true, Ordering::Release);
         }
         if let (false, Some((key, value))) = (stalled, &h.beat) {
             let _ =

@@ -158,13 +158,7 @@ pub async fn run(site: &Site, options: &TrackerOptions, stop: &AtomicBool) -> Re
     }
     let handover = async {
         if let Some(t) = tracking {
-            let key = lease_key(&t.sensor);
-            if let Some(revision) = keeper.release(&key).await {
-                let _ = site
-                    .leases
-                    .delete_expect_revision(key, Some(revision))
-                    .await;
-            }
+            keeper.give_back(site, &lease_key(&t.sensor)).await;
         }
         keeper.end_beat(site, &beat_key(&options.id)).await;
     };

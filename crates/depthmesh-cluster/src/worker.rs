@@ -462,13 +462,7 @@ impl Worker<'_> {
             self.checkpoint(shard).await?;
         }
         if self.owned.iter().any(|o| o.shard == shard) {
-            if let Some(revision) = self.keeper.release(&shard_key(shard)).await {
-                let _ = self
-                    .site
-                    .leases
-                    .delete_expect_revision(shard_key(shard), Some(revision))
-                    .await;
-            }
+            self.keeper.give_back(&self.site, &shard_key(shard)).await;
             self.forget(shard).await;
         }
         Ok(())
