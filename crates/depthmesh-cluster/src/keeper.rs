@@ -53,6 +53,8 @@ struct Held {
 /// Renews leases in the `leases` bucket (and a heartbeat) from a task of
 /// its own until dropped.
 pub struct Keeper {
+    /// The site leases are given back and heartbeats put on.
+    site: Site,
     held: Arc<Mutex<Held>>,
     /// Set with `Held::lost`, so that asking after every frame takes no
     /// lock (a round holds it while renewing).
@@ -77,6 +79,7 @@ impl Keeper {
             stall,
         ));
         Keeper {
+            site: site.clone(),
             held,
             any_lost,
             progress,
@@ -111,9 +114,10 @@ impl Keeper {
 
     /// Stops keeping `key` and deletes it, so that another may take it
     /// now rather than when it expires.
-    pub async fn give_back(&self, site: &Site, key: &str) {
+    pub async fn give_back(&self, key: &str) {
         if let Some(revision) = self.release(key).await {
-            let _ = site
+            let _ = self
+                .site
                 .leases
                 .delete_expect_revision(key, Some(revision))
                 .await;
@@ -130,10 +134,11 @@ impl Keeper {
 
     /// Puts `value` as `key` in the `workers` bucket now and again each
     /// round, so the holder stays among the live while a frame is long.
-    pub async fn beat(&self, site: &Site, key: String, value: Vec<u8>) -> crate::Result<()> {
+    pub async fn beat(&self, key: String, value: Vec<u8>) -> crate::Result<()> {
         // Put under the lock, so that no round puts an older one after it.
         let mut held = self.held.lock().await;
-        site.workers
+        self.site
+            .workers
             .put(&key, value.clone().into())
             .await
             .map_err(|e| crate::ClusterError::bus("cannot send a heartbeat", e))?;
@@ -143,10 +148,10 @@ impl Keeper {
 
     /// Stops putting the heartbeat `key` and deletes it (the holder is
     /// leaving), so that no round puts it back.
-    pub async fn end_beat(&self, site: &Site, key: &str) {
+    pub async fn end_beat(&self, key: &str) {
         let mut held = self.held.lock().await;
         held.beat = None;
-        let _ = site.workers.delete(key).await;
+        let _ = self.site.workers.delete(key).await;
     }
 }
 

@@ -136,7 +136,7 @@ pub async fn run(site: &Site, options: &TrackerOptions, stop: &AtomicBool) -> Re
                 .duration_since(UNIX_EPOCH)
                 .map_or(0.0, |d| d.as_secs_f64());
             let bytes = serde_json::to_vec(&beat).expect("heartbeat serialises");
-            keeper.beat(site, beat_key(&options.id), bytes).await?;
+            keeper.beat(beat_key(&options.id), bytes).await?;
         }
         let Some(t) = &mut tracking else {
             // Look for work again soon, not only at the next heartbeat.
@@ -158,9 +158,9 @@ pub async fn run(site: &Site, options: &TrackerOptions, stop: &AtomicBool) -> Re
     }
     let handover = async {
         if let Some(t) = tracking {
-            keeper.give_back(site, &lease_key(&t.sensor)).await;
+            keeper.give_back(&lease_key(&t.sensor)).await;
         }
-        keeper.end_beat(site, &beat_key(&options.id)).await;
+        keeper.end_beat(&beat_key(&options.id)).await;
     };
     // Past the limit (the bus gone) the lease expires instead.
     let _ = tokio::time::timeout(HANDOVER, handover).await;

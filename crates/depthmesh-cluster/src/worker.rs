@@ -374,9 +374,7 @@ impl Worker<'_> {
                 .map_or(0.0, |d| d.as_secs_f64()),
         };
         let bytes = serde_json::to_vec(&beat).expect("heartbeat serialises");
-        self.keeper
-            .beat(&self.site, self.options.id.clone(), bytes)
-            .await
+        self.keeper.beat(self.options.id.clone(), bytes).await
     }
 
     /// Takes free shards up to this worker's share, or gives one back above it.
@@ -462,7 +460,7 @@ impl Worker<'_> {
             self.checkpoint(shard).await?;
         }
         if self.owned.iter().any(|o| o.shard == shard) {
-            self.keeper.give_back(&self.site, &shard_key(shard)).await;
+            self.keeper.give_back(&shard_key(shard)).await;
             self.forget(shard).await;
         }
         Ok(())
@@ -474,7 +472,7 @@ impl Worker<'_> {
         for shard in shards {
             self.release(shard).await?;
         }
-        self.keeper.end_beat(&self.site, &self.options.id).await;
+        self.keeper.end_beat(&self.options.id).await;
         Ok(())
     }
 }
