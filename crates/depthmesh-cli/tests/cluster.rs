@@ -8,7 +8,7 @@
 //! `reconstruct --track`'s; `serve --nats` shows the site's map to a
 //! viewer. A lease outlasts work that blocks longer than the lease time,
 //! and not a holder that stopped; a worker stopped once the bus is gone
-//! exits, saying so. Needs `nats-server`, so it is ignored by
+//! exits, saying so; a worker and a tracker whose bus restarts carry on. Needs `nats-server`, so it is ignored by
 //! default; `.ci/cluster` installs it and runs it.
 
 mod common;
@@ -42,6 +42,29 @@ fn spawn(args: &[&str], log: &Path) -> Running {
             .spawn()
             .expect("the binary runs"),
     )
+}
+
+/// Starts fusion worker `name` on `site` (its `--nats` and `--site`
+/// arguments) with 1.5 s leases and `extra` options, its log `DIR/NAME.log`.
+fn worker(dir: &Path, site: &[&str], name: &str, extra: &[&str]) -> Running {
+    let mut args = vec![
+        "cluster",
+        "worker",
+        "--name",
+        name,
+        "--lease-seconds",
+        "1.5",
+    ];
+    args.extend(extra);
+    args.extend(site);
+    spawn(&args, &dir.join(format!("{name}.log")))
+}
+
+/// Starts tracker `name` on `site`, its log `DIR/NAME.log`.
+fn tracker(dir: &Path, site: &[&str], name: &str) -> Running {
+    let mut args = vec!["cluster", "tracker", "--name", name];
+    args.extend(site);
+    spawn(&args, &dir.join(format!("{name}.log")))
 }
 
 /// Waits for a background command, at most `limit`.
@@ -140,6 +163,23 @@ fn assert_reconstruct_made(
     common::summary(&out)
 }
 
+/// The fetched map of a site whose one sensor published `count` frames
+/// without poses is `reconstruct --track`'s, with the same frames lost and
+/// every other one on the stream.
+fn assert_tracked_as_reconstruct(
+    dir: &Path,
+    frames: &Path,
+    report: &serde_json::Value,
+    fetched: &Path,
+    count: u64,
+) {
+    let alone = assert_reconstruct_made(dir, frames, &["--track"], fetched);
+    assert_eq!(report["frames_lost"], alone["lost_frames"], "{report}");
+    let lost = report["frames_lost"].as_u64().unwrap();
+    let posed = report["frames_in_stream"].as_u64().unwrap();
+    assert_eq!(posed + lost, count, "{report}");
+}
+
 fn status(url: &str, site: &str) -> serde_json::Value {
     json(&depthmesh(&[
         "cluster", "status", "--nats", url, "--site", site,
@@ -165,17 +205,8 @@ fn a_worker_killed_halfway_loses_no_frame_and_fuses_none_twice() {
     let url = nats.url.as_str();
     let site = ["--nats", url, "--site", "kill"];
     let worker = |name: &str| {
-        let mut args = vec![
-            "cluster",
-            "worker",
-            "--name",
-            name,
-            "--lease-seconds",
-            "1.5",
-        ];
-        args.extend(["--checkpoint-every", "4", "--region-blocks", "2"]);
-        args.extend(site);
-        spawn(&args, &dir.join(format!("{name}.log")))
+        let extra = ["--checkpoint-every", "4", "--region-blocks", "2"];
+        worker(&dir, &site, name, &extra)
     };
     let (w1, w2, w3) = (worker("w1"), worker("w2"), worker("w3"));
     let publish = |sensor: &str, range: &str| {
@@ -313,21 +344,8 @@ fn a_sensor_without_poses_is_tracked_once_even_when_its_tracker_dies() {
     let url = nats.url.as_str();
     let f = frames.to_str().unwrap();
     let site = ["--nats", url, "--site", "track"];
-    let mut args = vec![
-        "cluster",
-        "worker",
-        "--name",
-        "w1",
-        "--lease-seconds",
-        "1.5",
-    ];
-    args.extend(site);
-    let worker = spawn(&args, &dir.join("w1.log"));
-    let tracker = |name: &str| {
-        let mut args = vec!["cluster", "tracker", "--name", name];
-        args.extend(site);
-        spawn(&args, &dir.join(format!("{name}.log")))
-    };
+    let worker = worker(&dir, &site, "w1", &[]);
+    let tracker = |name: &str| tracker(&dir, &site, name);
     let mut trackers = vec![("t1", tracker("t1")), ("t2", tracker("t2"))];
     // Eight seconds of frames, so that the kill below lands mid-stream even
     // when polling the status is slow on a loaded machine.
@@ -376,14 +394,7 @@ fn a_sensor_without_poses_is_tracked_once_even_when_its_tracker_dies() {
     }
     assert!(finish(publisher, Duration::from_secs(60)).success());
     let (report, fetched) = fetch(&dir, url, "track");
-    let alone = assert_reconstruct_made(&dir, &frames, &["--track"], &fetched);
-    assert_eq!(report["frames_lost"], alone["lost_frames"], "{report}");
-    let lost = report["frames_lost"].as_u64().unwrap();
-    assert_eq!(
-        report["frames_in_stream"].as_u64().unwrap() + lost,
-        40,
-        "{report}"
-    );
+    assert_tracked_as_reconstruct(&dir, &frames, &report, &fetched, 40);
     drop((worker, trackers));
 }
 
@@ -465,6 +476,42 @@ fn a_worker_stopped_with_the_bus_gone_gives_up_saying_so() {
     assert!(!status.success());
     let said = std::fs::read_to_string(&log).unwrap();
     assert!(said.contains("could not hand the shards over"), "{said}");
+}
+
+#[test]
+#[ignore = "needs nats-server: run by .ci/cluster"]
+fn a_worker_and_a_tracker_ride_out_a_restart_of_the_bus() {
+    let (dir, frames, mut nats) = setup("cluster-restart", 40);
+    let url = nats.url.clone();
+    let site = ["--nats", url.as_str(), "--site", "restart"];
+    let w1 = worker(&dir, &site, "w1", &["--checkpoint-every", "4"]);
+    let t1 = tracker(&dir, &site, "t1");
+    // Frames without poses: the tracker must pose them for the worker.
+    let publish = |range: &str| {
+        let f = frames.to_str().unwrap();
+        let mut args = vec![
+            "stream", f, "--frames", range, "--track", "--sensor", "a", "--rate", "max", "--quiet",
+        ];
+        args.extend(site);
+        ok(&depthmesh(&args))
+    };
+    publish("0..20");
+    fetch(&dir, &url, "restart");
+    // Down for longer than a request's timeout and than the leases: the
+    // shards and the sensor are free when the bus comes back, and must be
+    // taken again from the checkpoints and from the posed subject.
+    nats.restart(Duration::from_secs(20));
+    publish("20..40");
+    let (report, fetched) = fetch(&dir, &url, "restart");
+    for (mut process, name) in [(w1, "w1"), (t1, "t1")] {
+        let said = std::fs::read_to_string(dir.join(format!("{name}.log"))).unwrap();
+        assert!(
+            process.0.try_wait().unwrap().is_none(),
+            "{name} exited: {said}"
+        );
+        assert!(said.contains("the bus answers again"), "{name}: {said}");
+    }
+    assert_tracked_as_reconstruct(&dir, &frames, &report, &fetched, 40);
 }
 
 #[test]

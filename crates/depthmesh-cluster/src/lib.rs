@@ -21,6 +21,7 @@ pub mod fetch;
 pub mod frames;
 pub mod fuse;
 pub mod keeper;
+pub mod outage;
 pub mod publish;
 pub mod site;
 pub mod status;

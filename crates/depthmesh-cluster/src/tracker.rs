@@ -16,6 +16,7 @@ use crate::error::{ClusterError, Result};
 use crate::fetch::frames_by_sensor;
 use crate::frames::FrameReader;
 use crate::keeper::{Keeper, HANDOVER, STALL};
+use crate::outage::Outage;
 use crate::site::Site;
 use async_nats::jetstream::stream::RawMessageErrorKind;
 use async_nats::HeaderMap;
@@ -118,43 +119,58 @@ pub async fn run(site: &Site, options: &TrackerOptions, stop: &AtomicBool) -> Re
     let mut tracking: Option<Tracking> = None;
     let keeper = Keeper::start(site, STALL);
     let mut next_beat = Instant::now();
+    let mut outage = Outage::default();
+    let who = format!("tracker {}", options.id);
     while !stop.load(Ordering::Relaxed) {
-        keeper.alive();
-        // Before the next frame: another tracker may have the sensor.
-        let lost = keeper.lost().await;
-        if let Some(t) = tracking.take_if(|t| lost.contains(&lease_key(&t.sensor))) {
-            eprintln!("tracker {}: lease of sensor {} lost", options.id, t.sensor);
-        }
-        if Instant::now() >= next_beat {
-            site.refresh_lease().await?;
-            next_beat = Instant::now() + site.lease_ttl / 4;
-            if tracking.is_none() {
+        let turn: Result<()> = async {
+            keeper.alive();
+            // Before the next frame: another tracker may have the sensor.
+            let lost = keeper.lost().await;
+            if let Some(t) = tracking.take_if(|t| lost.contains(&lease_key(&t.sensor))) {
+                eprintln!("tracker {}: lease of sensor {} lost", options.id, t.sensor);
+            }
+            if Instant::now() >= next_beat {
+                site.refresh_lease().await?;
+                next_beat = Instant::now() + site.lease_ttl / 4;
+                if tracking.is_none() {
+                    tracking = claim(site, options, &keeper).await?;
+                }
+                beat.sensor = tracking.as_ref().map(|t| t.sensor.clone());
+                beat.at = SystemTime::now()
+                    .duration_since(UNIX_EPOCH)
+                    .map_or(0.0, |d| d.as_secs_f64());
+                let bytes = serde_json::to_vec(&beat).expect("heartbeat serialises");
+                keeper.beat(beat_key(&options.id), bytes).await?;
+            }
+            let Some(t) = &mut tracking else {
+                // Look for work again soon, not only at the next heartbeat.
+                tokio::time::sleep(Duration::from_millis(200)).await;
                 tracking = claim(site, options, &keeper).await?;
+                return Ok(());
+            };
+            if !step(site, t, &mut reader, &mut beat).await? {
+                if t.said.as_ref() != Some(&t.progress) {
+                    let bytes = serde_json::to_vec(&t.progress).expect("progress serialises");
+                    site.meta
+                        .put(tracked_key(&t.sensor), bytes.into())
+                        .await
+                        .map_err(|e| ClusterError::bus("cannot record a tracker's progress", e))?;
+                    t.said = Some(t.progress.clone());
+                }
+                tokio::time::sleep(Duration::from_millis(20)).await;
             }
-            beat.sensor = tracking.as_ref().map(|t| t.sensor.clone());
-            beat.at = SystemTime::now()
-                .duration_since(UNIX_EPOCH)
-                .map_or(0.0, |d| d.as_secs_f64());
-            let bytes = serde_json::to_vec(&beat).expect("heartbeat serialises");
-            keeper.beat(beat_key(&options.id), bytes).await?;
+            Ok(())
         }
-        let Some(t) = &mut tracking else {
-            // Look for work again soon, not only at the next heartbeat.
-            tokio::time::sleep(Duration::from_millis(200)).await;
-            tracking = claim(site, options, &keeper).await?;
-            continue;
-        };
-        if !step(site, t, &mut reader, &mut beat).await? {
-            if t.said.as_ref() != Some(&t.progress) {
-                let bytes = serde_json::to_vec(&t.progress).expect("progress serialises");
-                site.meta
-                    .put(tracked_key(&t.sensor), bytes.into())
-                    .await
-                    .map_err(|e| ClusterError::bus("cannot record a tracker's progress", e))?;
-                t.said = Some(t.progress.clone());
+        .await;
+        if turn.is_err() {
+            // A frame may have been tracked and its publication not
+            // confirmed: the sensor is let go and claimed again from what
+            // its posed subject holds (its lease expires meanwhile).
+            if let Some(t) = tracking.take() {
+                keeper.release(&lease_key(&t.sensor)).await;
             }
-            tokio::time::sleep(Duration::from_millis(20)).await;
         }
+        outage.after(&who, turn).await?;
     }
     let handover = async {
         if let Some(t) = tracking {

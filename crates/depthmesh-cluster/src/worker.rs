@@ -24,6 +24,7 @@ use crate::checkpoint::{
 use crate::error::{ClusterError, Result};
 use crate::fuse::{FuseTimes, Fused, Fuser, StreamReader};
 use crate::keeper::{Keeper, HANDOVER, STALL};
+use crate::outage::Outage;
 use crate::site::{live_entries, Site};
 use depthmesh::tsdf::regions::Regions;
 use glam::IVec3;
@@ -107,6 +108,14 @@ struct Worker<'a> {
     checkpoint_seconds: f64,
 }
 
+/// Where the loop stands between frames.
+struct Cursor {
+    reader: StreamReader,
+    /// The stream's last message as last asked.
+    last: u64,
+    next_beat: Instant,
+}
+
 /// Runs a worker on `site` until `stop` is set; then checkpoints its
 /// shards and gives them back.
 pub async fn run(site: &Site, options: &WorkerOptions, stop: &AtomicBool) -> Result<()> {
@@ -124,36 +133,25 @@ pub async fn run(site: &Site, options: &WorkerOptions, stop: &AtomicBool) -> Res
         checkpoints: 0,
         checkpoint_seconds: 0.0,
     };
-    let mut reader = StreamReader::new(site);
-    let mut last = site.last_seq().await?;
-    let mut next_beat = Instant::now();
-    let worked: Result<()> = async {
-        while !stop.load(Ordering::Relaxed) {
-            w.keeper.alive();
-            w.drop_lost().await;
-            let beat_every = w.site.lease_ttl / 4;
-            if Instant::now() >= next_beat {
-                w.heartbeat().await?;
-                next_beat = Instant::now() + w.site.lease_ttl / 4;
-            }
-            let Some(at) = w.owned.iter().map(|o| o.next).min() else {
-                tokio::time::sleep(beat_every.min(Duration::from_millis(200))).await;
-                continue;
-            };
-            if at > last {
-                last = site.last_seq().await?;
-                if at > last {
-                    w.save_unsaved().await?;
-                    tokio::time::sleep(Duration::from_millis(20)).await;
-                    continue;
-                }
-            }
-            let msg = reader.get(at, last).await?;
-            w.fuse_at(at, msg).await?;
+    let mut cursor = Cursor {
+        reader: StreamReader::new(site),
+        last: site.last_seq().await?,
+        next_beat: Instant::now(),
+    };
+    let mut outage = Outage::default();
+    let who = format!("worker {}", options.id);
+    // A failed turn leaves nothing half done that the next one repeats: a
+    // frame counts as fused once it is in the volume, and a checkpoint or a
+    // shard is written or taken again whole.
+    let worked: Result<()> = loop {
+        if stop.load(Ordering::Relaxed) {
+            break Ok(());
         }
-        Ok(())
-    }
-    .await;
+        let turn = w.step(&mut cursor).await;
+        if let Err(e) = outage.after(&who, turn).await {
+            break Err(e);
+        }
+    };
     // Told to stop, a worker whose last request failed (the bus going
     // down with the machine) still tries to hand its shards over.
     if worked.is_err() && !stop.load(Ordering::Relaxed) {
@@ -173,6 +171,32 @@ pub async fn run(site: &Site, options: &WorkerOptions, stop: &AtomicBool) -> Res
 }
 
 impl Worker<'_> {
+    /// One turn of the loop: the heartbeat when due, then the next frame
+    /// (or the checkpoints of a worker that has caught up).
+    async fn step(&mut self, c: &mut Cursor) -> Result<()> {
+        self.keeper.alive();
+        self.drop_lost().await;
+        let beat_every = self.site.lease_ttl / 4;
+        if Instant::now() >= c.next_beat {
+            self.heartbeat().await?;
+            c.next_beat = Instant::now() + beat_every;
+        }
+        let Some(at) = self.owned.iter().map(|o| o.next).min() else {
+            tokio::time::sleep(beat_every.min(Duration::from_millis(200))).await;
+            return Ok(());
+        };
+        if at > c.last {
+            c.last = self.site.last_seq().await?;
+            if at > c.last {
+                self.save_unsaved().await?;
+                tokio::time::sleep(Duration::from_millis(20)).await;
+                return Ok(());
+            }
+        }
+        let msg = c.reader.get(at, c.last).await?;
+        self.fuse_at(at, msg).await
+    }
+
     /// Fuses message `at` into the shards waiting for it.
     async fn fuse_at(
         &mut self,
@@ -408,7 +432,12 @@ impl Worker<'_> {
                 // Kept from now: loading a large shard may outlast the lease.
                 let id = self.options.id.clone().into_bytes();
                 self.keeper.hold(shard_key(s), id, revision).await;
-                self.take(s).await?;
+                if let Err(e) = self.take(s).await {
+                    // Not kept: a lease renewed for a shard nobody fuses
+                    // would hold it up for as long as this worker lives.
+                    self.keeper.give_back(&shard_key(s)).await;
+                    return Err(e);
+                }
             }
         }
         Ok(())

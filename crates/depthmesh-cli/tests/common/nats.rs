@@ -10,16 +10,24 @@ pub struct NatsServer {
     child: Child,
     /// `nats://127.0.0.1:PORT`.
     pub url: String,
+    /// The scratch folder its store and ports file are in.
+    dir: std::path::PathBuf,
 }
 
 impl NatsServer {
     /// Starts one with its store under `dir`; panics, saying so, when
     /// `nats-server` is not installed (`.ci/cluster` installs it).
     pub fn start(dir: &Path) -> NatsServer {
+        Self::start_on(dir, "-1")
+    }
+
+    /// Starts one on `port` ("-1": any free one).
+    fn start_on(dir: &Path, port: &str) -> NatsServer {
         let ports = dir.join("ports");
+        let _ = std::fs::remove_dir_all(&ports);
         std::fs::create_dir_all(&ports).unwrap();
         let child = Command::new(binary())
-            .args(["-js", "-a", "127.0.0.1", "-p", "-1", "--http_port", "0"])
+            .args(["-js", "-a", "127.0.0.1", "-p", port, "--http_port", "0"])
             .arg("-sd")
             .arg(dir.join("jetstream"))
             .arg("--ports_file_dir")
@@ -47,7 +55,29 @@ impl NatsServer {
             );
             std::thread::sleep(Duration::from_millis(50));
         };
-        NatsServer { child, url }
+        NatsServer {
+            child,
+            url,
+            dir: dir.to_path_buf(),
+        }
+    }
+
+    /// Stops the server (SIGTERM, as a restart does), waits `down`, and
+    /// starts it again on the same port with the same store.
+    #[allow(dead_code)] // not every test file restarts it
+    pub fn restart(&mut self, down: Duration) {
+        let port = self.url.rsplit(':').next().unwrap().to_string();
+        let status = Command::new("kill")
+            .arg(self.child.id().to_string())
+            .status()
+            .unwrap();
+        assert!(status.success());
+        self.child.wait().unwrap();
+        std::thread::sleep(down);
+        let again = Self::start_on(&self.dir, &port);
+        assert_eq!(again.url, self.url, "nats-server came back elsewhere");
+        // The old one's child is reaped already: dropping it does nothing.
+        drop(std::mem::replace(self, again));
     }
 }
 
