@@ -17,7 +17,7 @@ use crate::fetch::frames_by_sensor;
 use crate::frames::FrameReader;
 use crate::keeper::{Keeper, HANDOVER, STALL};
 use crate::outage::Outage;
-use crate::site::Site;
+use crate::site::{Site, SiteConfig};
 use async_nats::jetstream::stream::RawMessageErrorKind;
 use async_nats::HeaderMap;
 use depthmesh::session::{Session, SessionConfig};
@@ -202,32 +202,49 @@ async fn claim(site: &Site, options: &TrackerOptions, keeper: &Keeper) -> Result
         };
         let key = lease_key(&sensor);
         keeper
-            .hold(key, sensor.clone().into_bytes(), lease_revision)
+            .hold(key.clone(), sensor.clone().into_bytes(), lease_revision)
             .await;
-        let camera = site.sensor(&sensor).await?.ok_or_else(|| {
-            ClusterError::site(&site.name, format!("sensor {sensor} published no camera"))
-        })?;
-        let session = Session::new(SessionConfig {
-            intrinsics: camera,
-            map: config.map(),
-            tracking: Some(options.tracking.clone()),
-        })?;
-        let published_up_to = last_posed_index(site, &sensor).await?;
-        eprintln!(
-            "tracker {}: tracking sensor {sensor} (frames up to {published_up_to:?} already posed)",
-            options.id
-        );
-        return Ok(Some(Tracking {
-            sensor,
-            session,
-            range: (config.depth_min, config.depth_max),
-            next: 1,
-            published_up_to,
-            progress: Tracked::default(),
-            said: None,
-        }));
+        let started = start(site, options, &config, &sensor).await;
+        if started.is_err() {
+            // Not kept: a lease renewed for a sensor nobody tracks would
+            // hold it up for as long as this tracker lives.
+            keeper.give_back(&key).await;
+        }
+        return started.map(Some);
     }
     Ok(None)
+}
+
+/// Starts tracking `sensor`, whose lease is ours, after the frames already
+/// on its posed subject.
+async fn start(
+    site: &Site,
+    options: &TrackerOptions,
+    config: &SiteConfig,
+    sensor: &str,
+) -> Result<Tracking> {
+    let camera = site.sensor(sensor).await?.ok_or_else(|| {
+        ClusterError::site(&site.name, format!("sensor {sensor} published no camera"))
+    })?;
+    let session = Session::new(SessionConfig {
+        intrinsics: camera,
+        map: config.map(),
+        tracking: Some(options.tracking.clone()),
+    })?;
+    let published_up_to = last_posed_index(site, sensor).await?;
+    eprintln!(
+        "tracker {}: tracking sensor {sensor} (frames up to {published_up_to:?} already posed)",
+        options.id
+    );
+    Ok(Tracking {
+        sensor: sensor.to_string(),
+        session,
+        range: (config.depth_min, config.depth_max),
+        next: 1,
+        published_up_to,
+        progress: Tracked::default(),
+        said: None,
+    })
 }
 
 /// The index of the last frame on `sensor`'s posed subject.
