@@ -443,9 +443,23 @@ fn a_worker_stopped_with_the_bus_gone_gives_up_saying_so() {
     let (dir, frames, nats) = setup("cluster-bus-gone", 4);
     let url = nats.url.clone();
     let log = dir.join("w1.log");
+    // Leases longer than the wait below, so that the worker still holds its
+    // shards when it starts handing them over: the request it is in when
+    // told to stop first waits out its 10 s timeout, and by the lease time
+    // the keeper counts leases it could not renew as lost, with nothing
+    // left to give back.
     let worker = spawn(
         &[
-            "cluster", "worker", "--nats", &url, "--site", "gone", "--name", "w1",
+            "cluster",
+            "worker",
+            "--nats",
+            &url,
+            "--site",
+            "gone",
+            "--name",
+            "w1",
+            "--lease-seconds",
+            "120",
         ],
         &log,
     );
@@ -472,7 +486,9 @@ fn a_worker_stopped_with_the_bus_gone_gives_up_saying_so() {
     };
     signal("-STOP", nats.pid());
     signal("-TERM", worker.0.id());
-    let status = finish(worker, Duration::from_secs(40));
+    // At most the request's 10 s and the 20 s handover, not a request's
+    // timeout per shard.
+    let status = finish(worker, Duration::from_secs(60));
     assert!(!status.success());
     let said = std::fs::read_to_string(&log).unwrap();
     assert!(said.contains("could not hand the shards over"), "{said}");
