@@ -333,10 +333,23 @@ impl Worker<'_> {
             }
             None => {
                 eprintln!(
-                    "worker {}: shard {shard} was committed by another worker; giving it up",
+                    "worker {}: shard {shard} was committed since this worker's last \
+                     checkpoint of it; giving it up",
                     self.options.id
                 );
-                let _ = self.site.checkpoints.delete(&name).await;
+                // The commit may be this worker's own, applied by a bus whose
+                // reply was lost, naming the same segment (a retry at the same
+                // position): the segment goes only if the manifest does not
+                // name it, and stays when that cannot be read (a segment
+                // left behind wastes space, nothing more).
+                let named = match read_manifest(&self.site, shard).await {
+                    Ok(Some((m, _))) => m.segments.contains(&name),
+                    Ok(None) => false,
+                    Err(_) => true,
+                };
+                if !named {
+                    let _ = self.site.checkpoints.delete(&name).await;
+                }
                 self.forget(shard).await;
             }
         }
