@@ -8,8 +8,9 @@
 //! `reconstruct --track`'s; `serve --nats` shows the site's map to a
 //! viewer. A lease outlasts work that blocks longer than the lease time,
 //! and not a holder that stopped; a worker stopped once the bus is gone
-//! exits, saying so; a worker and a tracker whose bus restarts carry on. Needs `nats-server`, so it is ignored by
-//! default; `.ci/cluster` installs it and runs it.
+//! exits, saying so; a worker and a tracker whose bus restarts carry on.
+//! Needs `nats-server`, so it is ignored by default; `.ci/cluster`
+//! installs it and runs it.
 
 mod common;
 
@@ -45,15 +46,16 @@ fn spawn(args: &[&str], log: &Path) -> Running {
 }
 
 /// Starts fusion worker `name` on `site` (its `--nats` and `--site`
-/// arguments) with 1.5 s leases and `extra` options, its log `DIR/NAME.log`.
-fn worker(dir: &Path, site: &[&str], name: &str, extra: &[&str]) -> Running {
+/// arguments) with leases of `lease` seconds and `extra` options, its log
+/// `DIR/NAME.log`.
+fn worker(dir: &Path, site: &[&str], name: &str, lease: &str, extra: &[&str]) -> Running {
     let mut args = vec![
         "cluster",
         "worker",
         "--name",
         name,
         "--lease-seconds",
-        "1.5",
+        lease,
     ];
     args.extend(extra);
     args.extend(site);
@@ -206,7 +208,7 @@ fn a_worker_killed_halfway_loses_no_frame_and_fuses_none_twice() {
     let site = ["--nats", url, "--site", "kill"];
     let worker = |name: &str| {
         let extra = ["--checkpoint-every", "4", "--region-blocks", "2"];
-        worker(&dir, &site, name, &extra)
+        worker(&dir, &site, name, "1.5", &extra)
     };
     let (w1, w2, w3) = (worker("w1"), worker("w2"), worker("w3"));
     let publish = |sensor: &str, range: &str| {
@@ -344,7 +346,7 @@ fn a_sensor_without_poses_is_tracked_once_even_when_its_tracker_dies() {
     let url = nats.url.as_str();
     let f = frames.to_str().unwrap();
     let site = ["--nats", url, "--site", "track"];
-    let worker = worker(&dir, &site, "w1", &[]);
+    let worker = worker(&dir, &site, "w1", "1.5", &[]);
     let tracker = |name: &str| tracker(&dir, &site, name);
     let mut trackers = vec![("t1", tracker("t1")), ("t2", tracker("t2"))];
     // Eight seconds of frames, so that the kill below lands mid-stream even
@@ -448,21 +450,7 @@ fn a_worker_stopped_with_the_bus_gone_gives_up_saying_so() {
     // told to stop first waits out its 10 s timeout, and by the lease time
     // the keeper counts leases it could not renew as lost, with nothing
     // left to give back.
-    let worker = spawn(
-        &[
-            "cluster",
-            "worker",
-            "--nats",
-            &url,
-            "--site",
-            "gone",
-            "--name",
-            "w1",
-            "--lease-seconds",
-            "120",
-        ],
-        &log,
-    );
+    let worker = worker(&dir, &["--nats", &url, "--site", "gone"], "w1", "120", &[]);
     ok(&depthmesh(&[
         "stream",
         frames.to_str().unwrap(),
@@ -500,7 +488,7 @@ fn a_worker_and_a_tracker_ride_out_a_restart_of_the_bus() {
     let (dir, frames, mut nats) = setup("cluster-restart", 40);
     let url = nats.url.clone();
     let site = ["--nats", url.as_str(), "--site", "restart"];
-    let w1 = worker(&dir, &site, "w1", &["--checkpoint-every", "4"]);
+    let w1 = worker(&dir, &site, "w1", "1.5", &["--checkpoint-every", "4"]);
     let t1 = tracker(&dir, &site, "t1");
     // Frames without poses: the tracker must pose them for the worker.
     let publish = |range: &str| {
