@@ -412,6 +412,14 @@ fn check_name(name: &str) -> Result<()> {
     ))
 }
 
+/// Gives the existing bucket whose stream `config` describes its `max_age`.
+async fn give_age(js: &jetstream::Context, config: stream::Config) -> Result<(), String> {
+    js.update_stream(config)
+        .await
+        .map(|_| ())
+        .map_err(|e| e.to_string())
+}
+
 /// Opens the key-value bucket `bucket` (one value per key, entries that
 /// live `max_age`, or for ever when zero), creating it when missing, or
 /// giving it `max_age` when `update`.
@@ -441,14 +449,14 @@ async fn open_kv(
     let exists = js.get_key_value(bucket).await.is_ok();
     let made = match (exists, update) {
         (true, false) => Ok(()),
-        (true, true) => js
-            .update_stream(config)
-            .await
-            .map(|_| ())
-            .map_err(|e| e.to_string()),
-        (false, _) => match js.create_stream(config).await {
+        (true, true) => give_age(js, config).await,
+        (false, _) => match js.create_stream(config.clone()).await {
             Ok(_) => Ok(()),
-            // Another process may have created it meanwhile.
+            // Another process may have created it meanwhile, with its own
+            // age: a worker started with --lease-seconds beside a tracker
+            // that made the bucket first kept the tracker's default lease,
+            // and lost its leases to an outage shorter than its own.
+            Err(_) if update => give_age(js, config).await,
             Err(e) => js
                 .get_key_value(bucket)
                 .await
