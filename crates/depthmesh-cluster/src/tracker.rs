@@ -10,7 +10,9 @@
 //! (tracking is deterministic, so it finds the poses its predecessor
 //! found) and publishes only the frames after the last one on the posed
 //! subject; the frames' message ids make the stream keep a frame published
-//! twice in a race once.
+//! twice in a race once. A tracker that cannot reach the bus for a while
+//! keeps its sensor and its session, and goes on from the frame it had
+//! reached, unless its lease expired meanwhile.
 
 use crate::error::{ClusterError, Result};
 use crate::fetch::frames_by_sensor;
@@ -92,6 +94,12 @@ fn lease_key(sensor: &str) -> String {
     format!("tracker.{sensor}")
 }
 
+/// A tracked frame whose publication the bus has not confirmed yet.
+struct Unconfirmed {
+    index: u64,
+    message: bytes::Bytes,
+}
+
 /// A sensor being tracked.
 struct Tracking {
     sensor: String,
@@ -102,6 +110,10 @@ struct Tracking {
     next: u64,
     /// The last frame index already on the posed subject.
     published_up_to: Option<u64>,
+    /// A frame tracked whose publication failed: published again, with the
+    /// same message id, before any other frame is read. The session has
+    /// tracked it already, so it cannot be tracked again.
+    unconfirmed: Option<Unconfirmed>,
     /// Frames tracked and lost, and what was last said of them.
     progress: Tracked,
     said: Option<Tracked>,
@@ -162,14 +174,9 @@ pub async fn run(site: &Site, options: &TrackerOptions, stop: &AtomicBool) -> Re
             Ok(())
         }
         .await;
-        if turn.is_err() {
-            // A frame may have been tracked and its publication not
-            // confirmed: the sensor is let go and claimed again from what
-            // its posed subject holds (its lease expires meanwhile).
-            if let Some(t) = tracking.take() {
-                keeper.release(&lease_key(&t.sensor)).await;
-            }
-        }
+        // A failed turn keeps the sensor and its session: a frame whose
+        // publication failed is published again first (see `step`), and a
+        // sensor whose lease expired meanwhile is dropped above.
         outage.after(&who, turn).await?;
     }
     let handover = async {
@@ -242,6 +249,7 @@ async fn start(
         range: (config.depth_min, config.depth_max),
         next: 1,
         published_up_to,
+        unconfirmed: None,
         progress: Tracked::default(),
         said: None,
     })
@@ -263,13 +271,18 @@ async fn last_posed_index(site: &Site, sensor: &str) -> Result<Option<u64>> {
 }
 
 /// Tracks the sensor's next frame and publishes it; `false` when there is
-/// none yet.
+/// none yet. A step that fails leaves `t` as it was or with its frame
+/// [`Tracking::unconfirmed`], so the next one goes on from there.
 async fn step(
     site: &Site,
     t: &mut Tracking,
     reader: &mut FrameReader,
     beat: &mut TrackerBeat,
 ) -> Result<bool> {
+    if t.unconfirmed.is_some() {
+        publish(site, t, beat).await?;
+        return Ok(true);
+    }
     let msg = match site
         .stream
         .raw_message_builder()
@@ -282,7 +295,6 @@ async fn step(
         Err(e) if e.kind() == RawMessageErrorKind::NoMessageFound => return Ok(false),
         Err(e) => return Err(ClusterError::bus("cannot read the next frame", e)),
     };
-    t.next = msg.sequence + 1;
     let camera = reader.camera(site, &t.sensor).await?;
     let range = t.range;
     let tracked = tokio::task::block_in_place(|| -> Result<Option<(u64, depthmesh::Pose)>> {
@@ -308,6 +320,8 @@ async fn step(
         reader.put_back(input.depth);
         Ok(pose?.map(|p| (index, p)))
     })?;
+    // Only now: a failed request above reads the same message again.
+    t.next = msg.sequence + 1;
     beat.frames += 1;
     t.progress.frames += 1;
     let Some((index, pose)) = tracked else {
@@ -322,16 +336,34 @@ async fn step(
     out.pose = Some(pose);
     let mut bytes = Vec::with_capacity(msg.payload.len() + 48);
     out.encode(&mut bytes);
+    t.unconfirmed = Some(Unconfirmed {
+        index,
+        message: bytes.into(),
+    });
+    publish(site, t, beat).await?;
+    Ok(true)
+}
+
+/// Publishes `t`'s unconfirmed frame on the posed subject. Its message id
+/// makes the stream keep it once when an earlier try was stored but its
+/// reply lost: the stream's duplicate window (ten minutes) outlasts
+/// [`crate::outage::RIDE_OUT`].
+async fn publish(site: &Site, t: &mut Tracking, beat: &mut TrackerBeat) -> Result<()> {
+    let Some(Unconfirmed { index, message }) = &t.unconfirmed else {
+        return Ok(());
+    };
+    let index = *index;
     let mut headers = HeaderMap::new();
     let subject = site.posed_subject(&t.sensor);
     headers.insert("Nats-Msg-Id", Site::frame_id(&subject, index).as_str());
     site.js
-        .publish_with_headers(subject, headers, bytes.into())
+        .publish_with_headers(subject, headers, message.clone())
         .await
         .map_err(|e| ClusterError::bus(&format!("cannot publish frame {index}"), e))?
         .await
         .map_err(|e| ClusterError::bus(&format!("frame {index} was not stored"), e))?;
+    t.unconfirmed = None;
     t.published_up_to = Some(index);
     beat.published += 1;
-    Ok(true)
+    Ok(())
 }
