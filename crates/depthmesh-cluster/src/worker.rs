@@ -80,6 +80,9 @@ struct Owned {
     manifest_revision: Option<u64>,
     /// The volume's frame count when that checkpoint was taken.
     saved_at: u32,
+    /// Checkpoints tried since then whose commit got no answer: the bus
+    /// may have applied them (see [`Worker::commit_checkpoint`]).
+    unanswered: Vec<Manifest>,
 }
 
 impl Owned {
@@ -317,43 +320,91 @@ impl Worker<'_> {
         if !full {
             manifest.segment_bytes += o.manifest.segment_bytes;
         }
-        match commit(&self.site, shard, &manifest, o.manifest_revision).await? {
-            Some(revision) => {
-                let o = &mut self.owned[i];
-                let old = std::mem::replace(&mut o.manifest, manifest);
-                o.manifest_revision = Some(revision);
-                o.saved_at = saved_at;
-                self.checkpoints += 1;
-                if full {
-                    for name in old.segments {
-                        // A segment left behind wastes space, nothing more.
-                        let _ = self.site.checkpoints.delete(&name).await;
-                    }
-                }
-            }
-            None => {
-                eprintln!(
-                    "worker {}: shard {shard} was committed since this worker's last \
-                     checkpoint of it; giving it up",
-                    self.options.id
-                );
-                // The commit may be this worker's own, applied by a bus whose
-                // reply was lost, naming the same segment (a retry at the same
-                // position): the segment goes only if the manifest does not
-                // name it, and stays when that cannot be read (a segment
-                // left behind wastes space, nothing more).
-                let named = match read_manifest(&self.site, shard).await {
-                    Ok(Some((m, _))) => m.segments.contains(&name),
-                    Ok(None) => false,
-                    Err(_) => true,
-                };
-                if !named {
-                    let _ = self.site.checkpoints.delete(&name).await;
-                }
-                self.forget(shard).await;
-            }
+        let base = o.manifest_revision;
+        // Kept until the bus answers: a failed request may yet have been
+        // applied (its reply lost, or the request sent only once the bus
+        // was back).
+        let unanswered = &mut self.owned[i].unanswered;
+        if !unanswered.contains(&manifest) {
+            unanswered.push(manifest.clone());
+        }
+        let committed = match commit(&self.site, shard, &manifest, base).await? {
+            Some(revision) => Some(revision),
+            None => self.commit_over_own(shard, i, &manifest).await?,
+        };
+        let Some(revision) = committed else {
+            let stored = read_manifest(&self.site, shard).await;
+            self.give_up(shard, &name, stored.map(|m| m.map(|(m, _)| m)))
+                .await;
+            return Ok(());
+        };
+        let o = &mut self.owned[i];
+        let tried = std::mem::take(&mut o.unanswered);
+        let old = std::mem::replace(&mut o.manifest, manifest);
+        o.manifest_revision = Some(revision);
+        o.saved_at = saved_at;
+        self.checkpoints += 1;
+        // Segments no longer named: the old ones after a full rewrite, and
+        // those of checkpoints tried without an answer and superseded. A
+        // segment left behind wastes space, nothing more.
+        let named = &self.owned[i].manifest.segments;
+        let mut unnamed: Vec<String> = tried
+            .into_iter()
+            .flat_map(|m| m.segments)
+            .chain(if full { old.segments } else { Vec::new() })
+            .filter(|s| !named.contains(s))
+            .collect();
+        unnamed.sort();
+        unnamed.dedup();
+        for name in unnamed {
+            let _ = self.site.checkpoints.delete(&name).await;
         }
         Ok(())
+    }
+
+    /// After the commit of `manifest` to `shard` (owned at `i`) was
+    /// refused: its revision if the stored manifest is this one, or it is
+    /// committed on top of the stored one if that is a checkpoint this
+    /// worker tried and heard nothing back from (the commit that moved the
+    /// shard on was its own); `None` when another worker's commit did.
+    /// Giving the shard up for its own commit left it unfused for a lease
+    /// time.
+    async fn commit_over_own(
+        &mut self,
+        shard: u32,
+        i: usize,
+        manifest: &Manifest,
+    ) -> Result<Option<u64>> {
+        Ok(match read_manifest(&self.site, shard).await? {
+            Some((stored, revision)) if stored == *manifest => Some(revision),
+            Some((stored, revision)) if self.owned[i].unanswered.contains(&stored) => {
+                commit(&self.site, shard, manifest, Some(revision)).await?
+            }
+            _ => None,
+        })
+    }
+
+    /// Gives `shard` up after its commit of segment `name` was refused for
+    /// another's: `stored` is the manifest read back. The segment goes only
+    /// if that manifest does not name it (another worker may have taken
+    /// the shard on from a commit of this one that named it), and stays
+    /// when it could not be read: a segment left behind wastes space,
+    /// nothing more.
+    async fn give_up(&mut self, shard: u32, name: &str, stored: Result<Option<Manifest>>) {
+        eprintln!(
+            "worker {}: shard {shard} was committed since this worker's last \
+             checkpoint of it; giving it up",
+            self.options.id
+        );
+        let named = match stored {
+            Ok(Some(m)) => m.segments.iter().any(|s| s == name),
+            Ok(None) => false,
+            Err(_) => true,
+        };
+        if !named {
+            let _ = self.site.checkpoints.delete(name).await;
+        }
+        self.forget(shard).await;
     }
 
     /// Drops `shard` and its blocks without saving anything, and stops
@@ -489,6 +540,7 @@ impl Worker<'_> {
             manifest,
             manifest_revision,
             saved_at: self.fuser.volume.frames(),
+            unanswered: Vec::new(),
         });
         Ok(())
     }
