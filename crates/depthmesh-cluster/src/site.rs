@@ -412,7 +412,8 @@ fn check_name(name: &str) -> Result<()> {
     ))
 }
 
-/// Gives the existing bucket whose stream `config` describes its `max_age`.
+/// Gives the existing bucket whose stream `config` describes that config
+/// (what matters: its `max_age`, the lease time).
 async fn give_age(js: &jetstream::Context, config: stream::Config) -> Result<(), String> {
     js.update_stream(config)
         .await
@@ -456,7 +457,9 @@ async fn open_kv(
             // age: a worker started with --lease-seconds beside a tracker
             // that made the bucket first kept the tracker's default lease,
             // and lost its leases to an outage shorter than its own.
-            Err(_) if update => give_age(js, config).await,
+            Err(e) if update => give_age(js, config)
+                .await
+                .map_err(|u| format!("{e}; then, updating it: {u}")),
             Err(e) => js
                 .get_key_value(bucket)
                 .await

@@ -176,7 +176,8 @@ pub async fn run(site: &Site, options: &TrackerOptions, stop: &AtomicBool) -> Re
         .await;
         // A failed turn keeps the sensor and its session: a frame whose
         // publication failed is published again first (see `step`), and a
-        // sensor whose lease expired meanwhile is dropped above.
+        // sensor whose lease expired meanwhile is dropped at the top of a
+        // turn, once the keeper has found the lease lost.
         outage.after(&who, turn).await?;
     }
     let handover = async {
