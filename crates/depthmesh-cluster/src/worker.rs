@@ -36,6 +36,9 @@ use std::time::{Duration, Instant, SystemTime, UNIX_EPOCH};
 /// once it has this many: loading a shard then reads at most this many.
 const MAX_SEGMENTS: usize = 8;
 
+/// Checkpoints of a shard tried without an answer that are remembered.
+const MAX_UNANSWERED: usize = 8;
+
 /// How a worker runs.
 #[derive(Clone, Debug)]
 pub struct WorkerOptions {
@@ -326,6 +329,11 @@ impl Worker<'_> {
         // was back).
         let unanswered = &mut self.owned[i].unanswered;
         if !unanswered.contains(&manifest) {
+            // Bounded: a try forgotten here only costs the shard, at worst,
+            // a hand-over if the bus did apply it.
+            if unanswered.len() == MAX_UNANSWERED {
+                unanswered.remove(0);
+            }
             unanswered.push(manifest.clone());
         }
         let committed = match commit(&self.site, shard, &manifest, base).await? {
@@ -366,22 +374,39 @@ impl Worker<'_> {
     /// refused: its revision if the stored manifest is this one, or it is
     /// committed on top of the stored one if that is a checkpoint this
     /// worker tried and heard nothing back from (the commit that moved the
-    /// shard on was its own); `None` when another worker's commit did.
-    /// Giving the shard up for its own commit left it unfused for a lease
-    /// time.
+    /// shard on was its own); `None` when another worker's commit did, or
+    /// when the shard's lease is no longer this worker's (another may have
+    /// taken the shard on from that very checkpoint). Giving the shard up
+    /// for its own commit left it unfused for a lease time.
     async fn commit_over_own(
         &mut self,
         shard: u32,
         i: usize,
         manifest: &Manifest,
     ) -> Result<Option<u64>> {
-        Ok(match read_manifest(&self.site, shard).await? {
-            Some((stored, revision)) if stored == *manifest => Some(revision),
-            Some((stored, revision)) if self.owned[i].unanswered.contains(&stored) => {
-                commit(&self.site, shard, manifest, Some(revision)).await?
-            }
-            _ => None,
-        })
+        let Some((stored, revision)) = read_manifest(&self.site, shard).await? else {
+            return Ok(None);
+        };
+        let same = stored == *manifest;
+        if !(same || self.owned[i].unanswered.contains(&stored)) || !self.holds_lease(shard).await?
+        {
+            return Ok(None);
+        }
+        if same {
+            return Ok(Some(revision));
+        }
+        commit(&self.site, shard, manifest, Some(revision)).await
+    }
+
+    /// Whether `shard`'s lease still names this worker.
+    async fn holds_lease(&self, shard: u32) -> Result<bool> {
+        let value = self
+            .site
+            .leases
+            .get(shard_key(shard))
+            .await
+            .map_err(|e| ClusterError::bus("cannot read a lease", e))?;
+        Ok(value.is_some_and(|v| *v == *self.options.id.as_bytes()))
     }
 
     /// Gives `shard` up after its commit of segment `name` was refused for
