@@ -141,27 +141,30 @@ pub async fn load_blocks(site: &Site, shard: u32, manifest: &Manifest) -> Result
     Ok(blocks)
 }
 
-/// The blocks of shard `shard` as `manifest` says, or, when a segment it
-/// names is gone (the owner wrote the shard whole and deleted the older
-/// segments meanwhile), as the newer manifest says; with the manifest read.
+/// The blocks of shard `shard` as `manifest` (of revision `revision`)
+/// says, or, when a segment it names is gone (the owner wrote the shard
+/// whole and deleted the older segments meanwhile), as the newer manifest
+/// says; with the manifest loaded and its revision, which a commit on top
+/// of it must name.
 pub async fn load_shard(
     site: &Site,
     shard: u32,
     manifest: Manifest,
-) -> Result<(Manifest, KeyMap<Block>)> {
-    let mut manifest = manifest;
+    revision: Option<u64>,
+) -> Result<(Manifest, Option<u64>, KeyMap<Block>)> {
+    let (mut manifest, mut revision) = (manifest, revision);
     for _ in 0..3 {
         let failed = match load_blocks(site, shard, &manifest).await {
-            Ok(blocks) => return Ok((manifest, blocks)),
+            Ok(blocks) => return Ok((manifest, revision, blocks)),
             Err(e) => e,
         };
         match read_manifest(site, shard).await? {
-            Some((newer, _)) if newer != manifest => manifest = newer,
+            Some((newer, r)) if newer != manifest => (manifest, revision) = (newer, Some(r)),
             _ => return Err(failed),
         }
     }
     let blocks = load_blocks(site, shard, &manifest).await?;
-    Ok((manifest, blocks))
+    Ok((manifest, revision, blocks))
 }
 
 /// Stores a segment under `name`.

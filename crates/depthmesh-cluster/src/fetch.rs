@@ -179,7 +179,8 @@ pub async fn fetch(site: &Site, wait: Option<Duration>) -> Result<(Mesh, FetchRe
             report.frames_fused_min = 0;
             continue;
         };
-        let (m, blocks) = load_shard(site, shard as u32, m.clone()).await?;
+        // The revision matters only to a commit on top of it.
+        let (m, _, blocks) = load_shard(site, shard as u32, m.clone(), None).await?;
         let m = &m;
         report.blocks += blocks.len() as u64;
         report.checkpoint_bytes += m.segment_bytes;

@@ -547,7 +547,8 @@ impl Worker<'_> {
             Some((m, r)) => (m, Some(r)),
             None => (Manifest::default(), None),
         };
-        let (manifest, blocks) = load_shard(&self.site, shard, manifest).await?;
+        let (manifest, manifest_revision, blocks) =
+            load_shard(&self.site, shard, manifest, manifest_revision).await?;
         self.fuser
             .volume
             .restore(blocks.into_values().collect(), 0)?;
