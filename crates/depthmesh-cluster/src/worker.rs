@@ -336,15 +336,18 @@ impl Worker<'_> {
             }
             unanswered.push(manifest.clone());
         }
-        let committed = match commit(&self.site, shard, &manifest, base).await? {
-            Some(revision) => Some(revision),
-            None => self.commit_over_own(shard, i, &manifest).await?,
-        };
-        let Some(revision) = committed else {
-            let stored = read_manifest(&self.site, shard).await;
-            self.give_up(shard, &name, stored.map(|m| m.map(|(m, _)| m)))
-                .await;
-            return Ok(());
+        let revision = match commit(&self.site, shard, &manifest, base).await? {
+            Some(revision) => revision,
+            None => {
+                let stored = read_manifest(&self.site, shard).await?;
+                match self.commit_over_own(shard, i, &manifest, &stored).await? {
+                    Some(revision) => revision,
+                    None => {
+                        self.give_up(shard, &name, stored.map(|(m, _)| m)).await;
+                        return Ok(());
+                    }
+                }
+            }
         };
         let o = &mut self.owned[i];
         let tried = std::mem::take(&mut o.unanswered);
@@ -371,7 +374,8 @@ impl Worker<'_> {
     }
 
     /// After the commit of `manifest` to `shard` (owned at `i`) was
-    /// refused: its revision if the stored manifest is this one, or it is
+    /// refused, `stored` being the manifest read back: its revision if
+    /// that is this one, or it is
     /// committed on top of the stored one if that is a checkpoint this
     /// worker tried and heard nothing back from (the commit that moved the
     /// shard on was its own); `None` when another worker's commit did, or
@@ -383,19 +387,19 @@ impl Worker<'_> {
         shard: u32,
         i: usize,
         manifest: &Manifest,
+        stored: &Option<(Manifest, u64)>,
     ) -> Result<Option<u64>> {
-        let Some((stored, revision)) = read_manifest(&self.site, shard).await? else {
+        let Some((stored, revision)) = stored else {
             return Ok(None);
         };
-        let same = stored == *manifest;
-        if !(same || self.owned[i].unanswered.contains(&stored)) || !self.holds_lease(shard).await?
-        {
+        let same = stored == manifest;
+        if !(same || self.owned[i].unanswered.contains(stored)) || !self.holds_lease(shard).await? {
             return Ok(None);
         }
         if same {
-            return Ok(Some(revision));
+            return Ok(Some(*revision));
         }
-        commit(&self.site, shard, manifest, Some(revision)).await
+        commit(&self.site, shard, manifest, Some(*revision)).await
     }
 
     /// Whether `shard`'s lease still names this worker.
@@ -412,21 +416,14 @@ impl Worker<'_> {
     /// Gives `shard` up after its commit of segment `name` was refused for
     /// another's: `stored` is the manifest read back. The segment goes only
     /// if that manifest does not name it (another worker may have taken
-    /// the shard on from a commit of this one that named it), and stays
-    /// when it could not be read: a segment left behind wastes space,
-    /// nothing more.
-    async fn give_up(&mut self, shard: u32, name: &str, stored: Result<Option<Manifest>>) {
+    /// the shard on from a commit of this one that named it).
+    async fn give_up(&mut self, shard: u32, name: &str, stored: Option<Manifest>) {
         eprintln!(
             "worker {}: shard {shard} was committed since this worker's last \
              checkpoint of it; giving it up",
             self.options.id
         );
-        let named = match stored {
-            Ok(Some(m)) => m.segments.iter().any(|s| s == name),
-            Ok(None) => false,
-            Err(_) => true,
-        };
-        if !named {
+        if !stored.is_some_and(|m| m.segments.iter().any(|s| s == name)) {
             let _ = self.site.checkpoints.delete(name).await;
         }
         self.forget(shard).await;
