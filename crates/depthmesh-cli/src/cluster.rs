@@ -112,7 +112,8 @@ pub struct WorkerArgs {
     pub site: SiteArgs,
     #[command(flatten)]
     pub map: SiteMapArgs,
-    /// This worker's name on the site (default: host, process and time).
+    /// This worker's name on the site, which no other process there may use
+    /// at the same time (default: host, process and time).
     #[arg(long)]
     pub name: Option<String>,
     /// Checkpoint a shard after this many frames fused into it (and
@@ -129,7 +130,8 @@ pub struct TrackerArgs {
     /// Track only this sensor (default: any sensor that needs a tracker).
     #[arg(long)]
     pub sensor: Option<String>,
-    /// This tracker's name on the site (default: host, process and time).
+    /// This tracker's name on the site, which no other process there may use
+    /// at the same time (default: host, process and time).
     #[arg(long)]
     pub name: Option<String>,
 }

@@ -9,7 +9,8 @@
 //! viewer. A lease outlasts work that blocks longer than the lease time,
 //! and not a holder that stopped; a worker stopped once the bus is gone
 //! exits, saying so; a worker and a tracker whose bus restarts carry on,
-//! and keep what they hold when it is back before their leases expire.
+//! and keep what they hold when it is back before their leases expire,
+//! even when a renewal of theirs reaches the bus late.
 //! Needs `nats-server`, so it is ignored by default; `.ci/cluster`
 //! installs it and runs it.
 
@@ -437,6 +438,59 @@ fn a_lease_outlasts_work_longer_than_it_but_not_a_stalled_holder() {
         }
         tokio::time::sleep(ttl).await;
         assert_eq!(keeper.lost().await, ["shard.0"]);
+    });
+}
+
+#[test]
+#[ignore = "needs nats-server: run by .ci/cluster"]
+fn a_renewal_applied_after_its_keeper_stopped_waiting_does_not_cost_the_lease() {
+    use depthmesh_cluster::keeper::Keeper;
+    let dir = scratch("cluster-late-renewal");
+    let nats = NatsServer::start(&dir);
+    let ttl = Duration::from_secs(2);
+    let runtime = tokio::runtime::Runtime::new().unwrap();
+    runtime.block_on(async {
+        let site = depthmesh_cluster::Site::connect(&nats.url, "late", Some(ttl))
+            .await
+            .unwrap();
+        let keeper = Keeper::start(&site, Duration::from_secs(60));
+        let mut held = Vec::new();
+        for key in ["shard.0", "shard.1", "shard.2"] {
+            let revision = site.leases.create(key, "a".into()).await.unwrap();
+            keeper.hold(key.into(), b"a".to_vec(), revision).await;
+            held.push(revision);
+        }
+        // shard.0: a renewal of the keeper's own reaches the bus after the
+        // keeper gave up waiting for it (as a request sent on reconnecting
+        // does): the value is the keeper's, the revision has moved on.
+        let late = site
+            .leases
+            .update("shard.0", "a".into(), held[0])
+            .await
+            .unwrap();
+        // shard.1: another holder has it now; shard.2: it was deleted.
+        site.leases
+            .update("shard.1", "b".into(), held[1])
+            .await
+            .unwrap();
+        site.leases.delete("shard.2").await.unwrap();
+        // Two rounds (one every quarter of the lease time), and a margin.
+        tokio::time::sleep(ttl * 3 / 4).await;
+        let mut lost = keeper.lost().await;
+        lost.sort();
+        assert_eq!(lost, ["shard.1", "shard.2"]);
+        let entry = site.leases.entry("shard.0").await.unwrap().unwrap();
+        assert_eq!(&entry.value[..], b"a");
+        assert!(
+            entry.revision > late,
+            "the keeper did not renew the lease after the late renewal (revision {} then {late})",
+            entry.revision
+        );
+        assert_eq!(
+            &site.leases.get("shard.1").await.unwrap().unwrap()[..],
+            b"b",
+            "the keeper renewed another's lease"
+        );
     });
 }
 

@@ -33,7 +33,8 @@ pub const HANDOVER: Duration = Duration::from_secs(20);
 
 /// One lease held.
 struct Lease {
-    /// What a renewal writes (a worker's name, a tracker's sensor).
+    /// What a renewal writes: the holder's name, which no other process
+    /// has, so that a lease read back tells whose it is.
     value: Vec<u8>,
     revision: u64,
     renewed: Instant,
@@ -182,21 +183,19 @@ async fn keep(
         // after another on a slow bus could outlast the lease, and the lock
         // (which keeps a release from racing a renewal) is held meanwhile.
         let renewals = h.leases.iter().filter(|_| !stalled).map(|(key, lease)| {
-            let update = site
-                .leases
-                .update(key, lease.value.clone().into(), lease.revision);
-            async move { (key.clone(), tokio::time::timeout(ttl / 4, update).await) }
+            let renewal = renew(&site.leases, key, lease);
+            async move { (key.clone(), tokio::time::timeout(ttl / 4, renewal).await) }
         });
         let renewed = futures_util::future::join_all(renewals).await;
         let mut lost = Vec::new();
         for (key, outcome) in renewed {
             let lease = h.leases.get_mut(&key).expect("held while renewing");
             match outcome {
-                Ok(Ok(r)) => {
+                Ok(Renewal::Renewed(r)) => {
                     lease.revision = r;
                     lease.renewed = Instant::now();
                 }
-                Ok(Err(e)) if e.kind() == kv::UpdateErrorKind::WrongLastRevision => lost.push(key),
+                Ok(Renewal::Taken) => lost.push(key),
                 // The bus may be back before the lease runs out.
                 _ if lease.renewed.elapsed() >= ttl => lost.push(key),
                 _ => {}
@@ -220,5 +219,43 @@ async fn keep(
             let _ =
                 tokio::time::timeout(ttl / 4, site.workers.put(key, value.clone().into())).await;
         }
+    }
+}
+
+/// What renewing one lease came to.
+enum Renewal {
+    /// Renewed: the lease's new revision.
+    Renewed(u64),
+    /// The lease is another's now, or gone.
+    Taken,
+    /// The bus did not answer, or refused for another reason.
+    Failed,
+}
+
+/// Renews `lease`, stored as `key` in `leases`.
+///
+/// A renewal refused for a wrong revision is not yet a lost lease: one
+/// this keeper stopped waiting for (its reply lost, or the request sent
+/// only once the connection came back after an outage) may have been
+/// applied after all, moving the revision on unseen. So the lease is read
+/// back, and if it still holds this holder's value it is renewed again at
+/// the revision read.
+async fn renew(leases: &kv::Store, key: &str, lease: &Lease) -> Renewal {
+    let value = bytes::Bytes::from(lease.value.clone());
+    let refused = |e: &kv::UpdateError| e.kind() == kv::UpdateErrorKind::WrongLastRevision;
+    match leases.update(key, value.clone(), lease.revision).await {
+        Ok(r) => return Renewal::Renewed(r),
+        Err(e) if !refused(&e) => return Renewal::Failed,
+        Err(_) => {}
+    }
+    let revision = match leases.entry(key).await {
+        Ok(Some(e)) if e.operation == kv::Operation::Put && e.value == value => e.revision,
+        Ok(_) => return Renewal::Taken,
+        Err(_) => return Renewal::Failed,
+    };
+    match leases.update(key, value, revision).await {
+        Ok(r) => Renewal::Renewed(r),
+        Err(e) if refused(&e) => Renewal::Taken,
+        Err(_) => Renewal::Failed,
     }
 }

@@ -201,16 +201,18 @@ async fn claim(site: &Site, options: &TrackerOptions, keeper: &Keeper) -> Result
         if frames.raw == 0 || options.sensor.as_ref().is_some_and(|s| *s != sensor) {
             continue;
         }
+        // The lease names this tracker, not the sensor: its keeper tells
+        // a renewal of its own applied late from another tracker's lease.
         let Ok(lease_revision) = site
             .leases
-            .create(lease_key(&sensor), sensor.clone().into())
+            .create(lease_key(&sensor), options.id.clone().into())
             .await
         else {
             continue;
         };
         let key = lease_key(&sensor);
         keeper
-            .hold(key.clone(), sensor.clone().into_bytes(), lease_revision)
+            .hold(key.clone(), options.id.clone().into_bytes(), lease_revision)
             .await;
         let started = start(site, options, &config, &sensor).await;
         if started.is_err() {
