@@ -18,7 +18,7 @@ use depthmesh::tsdf::regions::Regions;
 use depthmesh::tsdf::TsdfConfig;
 use depthmesh::Intrinsics;
 use depthmesh_server::protocol::valid_session_name;
-use futures_util::TryStreamExt;
+use futures_util::{StreamExt, TryStreamExt};
 use serde::{Deserialize, Serialize};
 use std::time::Duration;
 
@@ -360,11 +360,12 @@ impl Site {
 
 /// The entries `store` holds now, key and value, deleted ones left out.
 ///
-/// Listed from its stream's subjects in one request, then read one by one.
-/// `kv::Store::keys` instead runs a consumer that waits for every entry
-/// pending when it started, which can wait long for heartbeats that expire
-/// meanwhile (nats-server issue 3481), and workers balancing, the status
-/// and the browser view read the heartbeats often.
+/// Listed from its stream's subjects in one request, then read
+/// [`READS_AT_ONCE`] at a time. `kv::Store::keys` instead runs a consumer
+/// that waits for every entry pending when it started, which can wait long
+/// for heartbeats that expire meanwhile (nats-server issue 3481), and
+/// workers balancing, the status and the browser view read the heartbeats
+/// often.
 pub async fn live_entries(store: &kv::Store) -> Result<Vec<(String, bytes::Bytes)>> {
     let subjects: Vec<(String, usize)> = store
         .stream
@@ -374,23 +375,30 @@ pub async fn live_entries(store: &kv::Store) -> Result<Vec<(String, bytes::Bytes
         .try_collect()
         .await
         .map_err(|e| ClusterError::bus("cannot list a bucket's keys", e))?;
-    let mut out = Vec::with_capacity(subjects.len());
-    for (subject, _) in subjects {
-        let Some(key) = subject.strip_prefix(store.prefix.as_str()) else {
-            continue;
-        };
-        let value = store
-            .get(key)
-            .await
-            .map_err(|e| ClusterError::bus("cannot read a bucket's entry", e))?;
-        // Gone since listed, or deleted (its marker keeps the subject).
-        if let Some(value) = value {
-            out.push((key.to_string(), value));
-        }
-    }
+    let keys = subjects
+        .into_iter()
+        .filter_map(|(subject, _)| Some(subject.strip_prefix(store.prefix.as_str())?.to_string()));
+    let mut out: Vec<(String, bytes::Bytes)> = futures_util::stream::iter(keys)
+        .map(|key| async move {
+            let value = store
+                .get(&key)
+                .await
+                .map_err(|e| ClusterError::bus("cannot read a bucket's entry", e))?;
+            // None: gone since listed, or deleted (its marker keeps the subject).
+            Ok::<_, ClusterError>(value.map(|v| (key, v)))
+        })
+        .buffer_unordered(READS_AT_ONCE)
+        .try_filter_map(|entry| async move { Ok(entry) })
+        .try_collect()
+        .await?;
     out.sort_by(|a, b| a.0.cmp(&b.0));
     Ok(out)
 }
+
+/// Entries [`live_entries`] asks for at once: one after another, a site of
+/// many workers and trackers would pay a round trip to the bus for each
+/// (a status over a network link, or a worker balancing, waited that long).
+const READS_AT_ONCE: usize = 16;
 
 /// A JetStream context on the bus at `url`.
 async fn bus(url: &str) -> Result<jetstream::Context> {
