@@ -228,7 +228,8 @@ enum Renewal {
     Renewed(u64),
     /// The lease is another's now, or gone.
     Taken,
-    /// The bus did not answer, or refused for another reason.
+    /// Refused for another reason, or not answered (a renewal the bus
+    /// does not answer is usually cut short by the round's time limit).
     Failed,
 }
 
@@ -238,24 +239,27 @@ enum Renewal {
 /// this keeper stopped waiting for (its reply lost, or the request sent
 /// only once the connection came back after an outage) may have been
 /// applied after all, moving the revision on unseen. So the lease is read
-/// back, and if it still holds this holder's value it is renewed again at
-/// the revision read.
+/// back, and while it still holds this holder's value it is renewed again
+/// at the revision read (another such renewal may land first, up to
+/// [`RENEW_TRIES`] times; the round's time limit bounds them too).
 async fn renew(leases: &kv::Store, key: &str, lease: &Lease) -> Renewal {
     let value = bytes::Bytes::from(lease.value.clone());
-    let refused = |e: &kv::UpdateError| e.kind() == kv::UpdateErrorKind::WrongLastRevision;
-    match leases.update(key, value.clone(), lease.revision).await {
-        Ok(r) => return Renewal::Renewed(r),
-        Err(e) if !refused(&e) => return Renewal::Failed,
-        Err(_) => {}
+    let mut revision = lease.revision;
+    for _ in 0..RENEW_TRIES {
+        match leases.update(key, value.clone(), revision).await {
+            Ok(r) => return Renewal::Renewed(r),
+            Err(e) if e.kind() != kv::UpdateErrorKind::WrongLastRevision => return Renewal::Failed,
+            Err(_) => {}
+        }
+        revision = match leases.entry(key).await {
+            Ok(Some(e)) if e.operation == kv::Operation::Put && e.value == value => e.revision,
+            Ok(_) => return Renewal::Taken,
+            Err(_) => return Renewal::Failed,
+        };
     }
-    let revision = match leases.entry(key).await {
-        Ok(Some(e)) if e.operation == kv::Operation::Put && e.value == value => e.revision,
-        Ok(_) => return Renewal::Taken,
-        Err(_) => return Renewal::Failed,
-    };
-    match leases.update(key, value, revision).await {
-        Ok(r) => Renewal::Renewed(r),
-        Err(e) if refused(&e) => Renewal::Taken,
-        Err(_) => Renewal::Failed,
-    }
+    Renewal::Failed
 }
+
+/// Renewals [`renew`] tries in one round while the lease read back is
+/// still this holder's.
+const RENEW_TRIES: usize = 3;

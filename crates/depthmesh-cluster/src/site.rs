@@ -360,8 +360,8 @@ impl Site {
 
 /// The entries `store` holds now, key and value, deleted ones left out.
 ///
-/// Listed from its stream's subjects in one request, then read
-/// [`READS_AT_ONCE`] at a time. `kv::Store::keys` instead runs a consumer
+/// Listed from its stream's subjects in one request, then read sixteen at
+/// a time. `kv::Store::keys` instead runs a consumer
 /// that waits for every entry pending when it started, which can wait long
 /// for heartbeats that expire meanwhile (nats-server issue 3481), and
 /// workers balancing, the status and the browser view read the heartbeats
