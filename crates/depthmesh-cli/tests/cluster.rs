@@ -402,19 +402,28 @@ fn a_sensor_without_poses_is_tracked_once_even_when_its_tracker_dies() {
     drop((worker, trackers));
 }
 
+/// For the library's lease keeping: a nats-server of its own, a runtime,
+/// and site `name` on it with leases of `ttl` (connected in that runtime).
+fn lease_site(
+    name: &str,
+    ttl: Duration,
+) -> (NatsServer, tokio::runtime::Runtime, depthmesh_cluster::Site) {
+    let nats = NatsServer::start(&scratch(&format!("cluster-lease-{name}")));
+    let runtime = tokio::runtime::Runtime::new().unwrap();
+    let site = runtime
+        .block_on(depthmesh_cluster::Site::connect(&nats.url, name, Some(ttl)))
+        .unwrap();
+    (nats, runtime, site)
+}
+
 #[test]
 #[ignore = "needs nats-server: run by .ci/cluster"]
 fn a_lease_outlasts_work_longer_than_it_but_not_a_stalled_holder() {
     use depthmesh_cluster::keeper::Keeper;
-    let dir = scratch("cluster-keeper");
-    let nats = NatsServer::start(&dir);
     let ttl = Duration::from_millis(800);
     let stall = Duration::from_secs(3);
-    let runtime = tokio::runtime::Runtime::new().unwrap();
+    let (_nats, runtime, site) = lease_site("keep", ttl);
     runtime.block_on(async {
-        let site = depthmesh_cluster::Site::connect(&nats.url, "keep", Some(ttl))
-            .await
-            .unwrap();
         let keeper = Keeper::start(&site, stall);
         let revision = site.leases.create("shard.0", "a".into()).await.unwrap();
         keeper.hold("shard.0".into(), b"a".to_vec(), revision).await;
@@ -445,14 +454,9 @@ fn a_lease_outlasts_work_longer_than_it_but_not_a_stalled_holder() {
 #[ignore = "needs nats-server: run by .ci/cluster"]
 fn a_renewal_applied_after_its_keeper_stopped_waiting_does_not_cost_the_lease() {
     use depthmesh_cluster::keeper::Keeper;
-    let dir = scratch("cluster-late-renewal");
-    let nats = NatsServer::start(&dir);
     let ttl = Duration::from_secs(2);
-    let runtime = tokio::runtime::Runtime::new().unwrap();
+    let (_nats, runtime, site) = lease_site("late", ttl);
     runtime.block_on(async {
-        let site = depthmesh_cluster::Site::connect(&nats.url, "late", Some(ttl))
-            .await
-            .unwrap();
         let mut held = Vec::new();
         for key in ["shard.0", "shard.1", "shard.2"] {
             held.push(site.leases.create(key, "a".into()).await.unwrap());
