@@ -361,11 +361,10 @@ impl Site {
 /// The entries `store` holds now, key and value, deleted ones left out.
 ///
 /// Listed from its stream's subjects in one request, then read sixteen at
-/// a time. `kv::Store::keys` instead runs a consumer
-/// that waits for every entry pending when it started, which can wait long
-/// for heartbeats that expire meanwhile (nats-server issue 3481), and
-/// workers balancing, the status and the browser view read the heartbeats
-/// often.
+/// a time. `kv::Store::keys` instead runs a consumer that waits for every
+/// entry pending when it started, which can wait long for heartbeats that
+/// expire meanwhile (nats-server issue 3481), and workers balancing, the
+/// status and the browser view read the heartbeats often.
 pub async fn live_entries(store: &kv::Store) -> Result<Vec<(String, bytes::Bytes)>> {
     let subjects: Vec<(String, usize)> = store
         .stream
@@ -378,19 +377,19 @@ pub async fn live_entries(store: &kv::Store) -> Result<Vec<(String, bytes::Bytes
     let keys = subjects
         .into_iter()
         .filter_map(|(subject, _)| Some(subject.strip_prefix(store.prefix.as_str())?.to_string()));
-    let mut out: Vec<(String, bytes::Bytes)> = futures_util::stream::iter(keys)
+    let read: Vec<Option<(String, bytes::Bytes)>> = futures_util::stream::iter(keys)
         .map(|key| async move {
             let value = store
                 .get(&key)
                 .await
                 .map_err(|e| ClusterError::bus("cannot read a bucket's entry", e))?;
-            // None: gone since listed, or deleted (its marker keeps the subject).
             Ok::<_, ClusterError>(value.map(|v| (key, v)))
         })
         .buffer_unordered(READS_AT_ONCE)
-        .try_filter_map(|entry| async move { Ok(entry) })
         .try_collect()
         .await?;
+    // None: gone since listed, or deleted (its marker keeps the subject).
+    let mut out: Vec<_> = read.into_iter().flatten().collect();
     out.sort_by(|a, b| a.0.cmp(&b.0));
     Ok(out)
 }
