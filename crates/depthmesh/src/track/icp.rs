@@ -197,7 +197,7 @@ pub fn equations(
                     continue;
                 }
                 row.candidates += 1;
-                let Some((p, d, mn)) = matched(model, &mk, frame_to_model, assoc, max_d2, p, n)
+                let Some((p, d, mn, _)) = matched(model, &mk, frame_to_model, assoc, max_d2, p, n)
                 else {
                     continue;
                 };
@@ -240,7 +240,6 @@ pub fn block_equations(
     let Some(mk) = model.intrinsics else {
         return Equations::default();
     };
-    let (mw, mh) = model.size();
     let max_d2 = assoc.max_distance * assoc.max_distance;
     let block = block.max(1);
     frame
@@ -255,18 +254,15 @@ pub fn block_equations(
                     continue;
                 }
                 row.candidates += 1;
-                let p = frame_to_model.transform_point(p);
-                let Some((u, v)) = project(&mk, (mw, mh), p) else {
-                    continue;
-                };
-                let normal = frame_to_model.transform_vector(n);
-                let Some((d, _)) = associate(model, (u, v), p, normal, assoc, max_d2) else {
+                let Some((p, d, _, pixel)) =
+                    matched(model, &mk, frame_to_model, assoc, max_d2, p, n)
+                else {
                     continue;
                 };
                 // Around the point's own pixel: with a window the match may
                 // be a neighbour's, but weighing is asked for only while the
                 // camera is followed, where the window is 0.
-                let mn = surface_normal(model, (u, v), radius);
+                let mn = surface_normal(model, pixel, radius);
                 if mn != Vec3::ZERO {
                     row.add(jacobian_row(p, mn), d.dot(mn), p.length_squared());
                 }
@@ -328,7 +324,8 @@ pub fn facing_information(
                     if n == Vec3::ZERO {
                         continue;
                     }
-                    let Some((p, _, mn)) = matched(model, &mk, frame_to_model, assoc, max_d2, p, n)
+                    let Some((p, _, mn, _)) =
+                        matched(model, &mk, frame_to_model, assoc, max_d2, p, n)
                     else {
                         continue;
                     };
@@ -361,7 +358,8 @@ fn jacobian_row(p: Vec3, mn: Vec3) -> [f32; 6] {
 
 /// Frame point `p` with normal `n`, moved into the model camera by
 /// `frame_to_model`, and what it is associated with there (see
-/// [`associate`]): the moved point, `p − m` and the model normal.
+/// [`associate`]): the moved point, `p − m`, the model normal and the
+/// model pixel the point projects to.
 #[inline(always)]
 fn matched(
     model: &Level,
@@ -371,12 +369,12 @@ fn matched(
     max_d2: f32,
     p: Vec3,
     n: Vec3,
-) -> Option<(Vec3, Vec3, Vec3)> {
+) -> Option<(Vec3, Vec3, Vec3, (usize, usize))> {
     let p = frame_to_model.transform_point(p);
     let pixel = project(mk, model.size(), p)?;
     let normal = frame_to_model.transform_vector(n);
     let (d, mn) = associate(model, pixel, p, normal, assoc, max_d2)?;
-    Some((p, d, mn))
+    Some((p, d, mn, pixel))
 }
 
 /// The model pixel camera-space point `p` projects to, if it lies in
