@@ -176,42 +176,29 @@ pub fn equations(
     frame_to_model: &Pose,
     assoc: &Association,
 ) -> Equations {
-    let (w, _) = frame.size();
-    let Some(mk) = model.intrinsics else {
-        return Equations::default();
-    };
-    let max_d2 = assoc.max_distance * assoc.max_distance;
     let weights = if assoc.balance {
         bin_weights(&frame.normals)
     } else {
         [1.0; 6]
     };
-    frame
-        .points
-        .par_chunks(w)
-        .zip(frame.normals.par_chunks(w))
-        .fold(Equations::default, |mut eq, (points, normals)| {
-            let mut row = RowSums::default();
-            for (&p, &n) in points.iter().zip(normals) {
-                if n == Vec3::ZERO {
-                    continue;
-                }
-                row.candidates += 1;
-                let Some((p, d, mn, _)) = matched(model, &mk, frame_to_model, assoc, max_d2, p, n)
-                else {
-                    continue;
-                };
-                let s = weights[normal_bin(n)];
+    fold_matches(
+        frame,
+        model,
+        frame_to_model,
+        assoc,
+        1,
+        |row: &mut RowSums, m| {
+            row.candidates += 1;
+            if let Some(m) = m {
+                let s = weights[normal_bin(m.frame_normal)];
                 row.add(
-                    jacobian_row(p, mn).map(|j| j * s),
-                    d.dot(mn) * s,
-                    p.length_squared(),
+                    jacobian_row(m.point, m.model_normal).map(|j| j * s),
+                    m.offset.dot(m.model_normal) * s,
+                    m.point.length_squared(),
                 );
             }
-            eq.add_row(&row);
-            eq
-        })
-        .reduce(Equations::default, Equations::merge)
+        },
+    )
 }
 
 /// The normal equations of [`equations`] at `frame_to_model`, for weighing
@@ -236,41 +223,30 @@ pub fn block_equations(
     block: usize,
     radius: usize,
 ) -> Equations {
-    let (w, _) = frame.size();
-    let Some(mk) = model.intrinsics else {
-        return Equations::default();
-    };
-    let max_d2 = assoc.max_distance * assoc.max_distance;
-    let block = block.max(1);
-    frame
-        .points
-        .par_chunks(w)
-        .zip(frame.normals.par_chunks(w))
-        .step_by(block)
-        .fold(Equations::default, |mut eq, (points, normals)| {
-            let mut row = RowSums::default();
-            for (&p, &n) in points.iter().zip(normals).step_by(block) {
-                if n == Vec3::ZERO {
-                    continue;
-                }
-                row.candidates += 1;
-                let Some((p, d, _, pixel)) =
-                    matched(model, &mk, frame_to_model, assoc, max_d2, p, n)
-                else {
-                    continue;
-                };
-                // Around the point's own pixel: with a window the match may
-                // be a neighbour's, but weighing is asked for only while the
-                // camera is followed, where the window is 0.
-                let mn = surface_normal(model, pixel, radius);
-                if mn != Vec3::ZERO {
-                    row.add(jacobian_row(p, mn), d.dot(mn), p.length_squared());
-                }
+    fold_matches(
+        frame,
+        model,
+        frame_to_model,
+        assoc,
+        block,
+        |row: &mut RowSums, m| {
+            row.candidates += 1;
+            let Some(m) = m else {
+                return;
+            };
+            // Around the point's own pixel: with a window the match may be a
+            // neighbour's, but weighing is asked for only while the camera is
+            // followed, where the window is 0.
+            let mn = surface_normal(model, m.pixel, radius);
+            if mn != Vec3::ZERO {
+                row.add(
+                    jacobian_row(m.point, mn),
+                    m.offset.dot(mn),
+                    m.point.length_squared(),
+                );
             }
-            eq.add_row(&row);
-            eq
-        })
-        .reduce(Equations::default, Equations::merge)
+        },
+    )
 }
 
 /// The mean of the normals within `radius` pixels of model pixel `(u, v)`
@@ -308,43 +284,123 @@ pub fn facing_information(
     (direction, range): ([f64; 6], f64),
     facing: f64,
 ) -> f64 {
+    let (sum, inliers) = fold_matches(
+        frame,
+        model,
+        frame_to_model,
+        assoc,
+        1,
+        |(sum, inliers): &mut (f64, usize), m| {
+            let Some(m) = m else {
+                return;
+            };
+            let mut row = jacobian_row(m.point, m.model_normal);
+            for rotation in &mut row[..3] {
+                *rotation /= range as f32;
+            }
+            let row = row.map(f64::from);
+            let along: f64 = row.iter().zip(&direction).map(|(a, b)| a * b).sum();
+            *inliers += 1;
+            if along.abs() >= facing {
+                *sum += along * along;
+            }
+        },
+    );
+    sum / inliers.max(1) as f64
+}
+
+/// A frame point associated with the model (see [`matched`]).
+struct Match {
+    /// The frame point's normal, in the frame camera.
+    frame_normal: Vec3,
+    /// The frame point moved into the model camera.
+    point: Vec3,
+    /// `point` less the model point it is associated with.
+    offset: Vec3,
+    /// The model point's normal.
+    model_normal: Vec3,
+    /// The model pixel `point` projects to.
+    pixel: (usize, usize),
+}
+
+/// Sums over the frame points with a normal, every `step`-th point of every
+/// `step`-th row, each with its match in the model if it has one: `add`
+/// puts a point's term into its row's sums, and the rows are totalled with
+/// [`Accumulate::add_row`]. Sums are per row before they join the total, so
+/// a total in `f64` of `f32` rows does not depend on how the rows were
+/// split between threads.
+fn fold_matches<R: Accumulate>(
+    frame: &Level,
+    model: &Level,
+    frame_to_model: &Pose,
+    assoc: &Association,
+    step: usize,
+    add: impl Fn(&mut R, Option<Match>) + Sync,
+) -> R::Total {
     let (w, _) = frame.size();
     let Some(mk) = model.intrinsics else {
-        return 0.0;
+        return R::Total::default();
     };
     let max_d2 = assoc.max_distance * assoc.max_distance;
-    let (sum, inliers) = frame
+    let step = step.max(1);
+    frame
         .points
-        .par_chunks(w)
-        .zip(frame.normals.par_chunks(w))
-        .fold(
-            || (0.0f64, 0usize),
-            |(mut sum, mut inliers), (points, normals)| {
-                for (&p, &n) in points.iter().zip(normals) {
-                    if n == Vec3::ZERO {
-                        continue;
-                    }
-                    let Some((p, _, mn, _)) =
-                        matched(model, &mk, frame_to_model, assoc, max_d2, p, n)
-                    else {
-                        continue;
-                    };
-                    let mut row = jacobian_row(p, mn);
-                    for rotation in &mut row[..3] {
-                        *rotation /= range as f32;
-                    }
-                    let row = row.map(f64::from);
-                    let along: f64 = row.iter().zip(&direction).map(|(a, b)| a * b).sum();
-                    inliers += 1;
-                    if along.abs() >= facing {
-                        sum += along * along;
-                    }
+        .par_chunks(w * step)
+        .zip(frame.normals.par_chunks(w * step))
+        .fold(R::Total::default, |mut total, (rows, normals)| {
+            let mut row = R::default();
+            // The first row of each `step` rows (chunks, not a stepped
+            // iterator over rows), and an index stepped by hand: `step_by`
+            // over the pixels made the kitchen's tracking 10 % slower, and
+            // a closure per pixel was not inlined.
+            let (points, normals) = (&rows[..w], &normals[..w]);
+            let mut x = 0;
+            while x < w {
+                let (p, n) = (points[x], normals[x]);
+                if n != Vec3::ZERO {
+                    add(
+                        &mut row,
+                        matched(model, &mk, frame_to_model, assoc, max_d2, p, n),
+                    );
                 }
-                (sum, inliers)
-            },
-        )
-        .reduce(|| (0.0, 0), |(a, n), (b, m)| (a + b, n + m));
-    sum / inliers.max(1) as f64
+                x += step;
+            }
+            R::add_row(&mut total, row);
+            total
+        })
+        .reduce(R::Total::default, R::merge)
+}
+
+/// Per-row sums of [`fold_matches`] and how they are totalled.
+trait Accumulate: Default {
+    /// The sum over all rows.
+    type Total: Default + Send;
+    /// Adds one row's sums to `total`.
+    fn add_row(total: &mut Self::Total, row: Self);
+    /// Two totals' sum.
+    fn merge(a: Self::Total, b: Self::Total) -> Self::Total;
+}
+
+impl Accumulate for RowSums {
+    type Total = Equations;
+    fn add_row(total: &mut Equations, row: RowSums) {
+        total.add_row(&row);
+    }
+    fn merge(a: Equations, b: Equations) -> Equations {
+        a.merge(b)
+    }
+}
+
+/// A sum of squares and its count.
+impl Accumulate for (f64, usize) {
+    type Total = (f64, usize);
+    fn add_row(total: &mut (f64, usize), row: (f64, usize)) {
+        total.0 += row.0;
+        total.1 += row.1;
+    }
+    fn merge(a: (f64, usize), b: (f64, usize)) -> (f64, usize) {
+        (a.0 + b.0, a.1 + b.1)
+    }
 }
 
 /// The row of the point-to-plane Jacobian for a frame point at `p` (in the
@@ -358,8 +414,7 @@ fn jacobian_row(p: Vec3, mn: Vec3) -> [f32; 6] {
 
 /// Frame point `p` with normal `n`, moved into the model camera by
 /// `frame_to_model`, and what it is associated with there (see
-/// [`associate`]): the moved point, `p − m`, the model normal and the
-/// model pixel the point projects to.
+/// [`associate`]), if anything.
 #[inline(always)]
 fn matched(
     model: &Level,
@@ -369,12 +424,18 @@ fn matched(
     max_d2: f32,
     p: Vec3,
     n: Vec3,
-) -> Option<(Vec3, Vec3, Vec3, (usize, usize))> {
-    let p = frame_to_model.transform_point(p);
-    let pixel = project(mk, model.size(), p)?;
+) -> Option<Match> {
+    let point = frame_to_model.transform_point(p);
+    let pixel = project(mk, model.size(), point)?;
     let normal = frame_to_model.transform_vector(n);
-    let (d, mn) = associate(model, pixel, p, normal, assoc, max_d2)?;
-    Some((p, d, mn, pixel))
+    let (offset, model_normal) = associate(model, pixel, point, normal, assoc, max_d2)?;
+    Some(Match {
+        frame_normal: n,
+        point,
+        offset,
+        model_normal,
+        pixel,
+    })
 }
 
 /// The model pixel camera-space point `p` projects to, if it lies in
