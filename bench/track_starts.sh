@@ -1,0 +1,57 @@
+#!/usr/bin/env bash
+# Tracking the 7-Scenes kitchen from other first frames: for each START,
+# frames START..END-1 tracked from START's pose alone, by depthmesh
+# (`reconstruct --track`) and by Open3D's dense SLAM (as in
+# bench/track_vs_open3d.sh: 8³ blocks, 4-voxel truncation, colour fused
+# too) in the same run. Per start: frames lost by each, and each one's
+# trajectory error against the folder's poses (from the first pose; after
+# rigid alignment), every frame scored, a frame depthmesh lost at its last
+# good pose. A run that starts mid-sequence meets the scene as a held-out
+# stretch would: no map yet, and no motion measured.
+#
+# Usage: bench/track_starts.sh [STARTS] [END] [VOXEL]   (defaults "25 50 100 150 200 250", 300, 0.01)
+# Needs ../shared beside the repository (or DEPTHMESH_SHARED).
+set -euo pipefail
+cd "$(dirname "$0")/.."
+starts=${1:-25 50 100 150 200 250}
+end=${2:-300}
+voxel=${3:-0.01}
+for start in $starts; do
+  if [[ ! $start =~ ^[0-9]+$ ]] || ((start + 1 >= end)); then
+    echo "error: each START must be a whole number at least 2 frames before END ($end), got \"$start\"" >&2
+    exit 1
+  fi
+done
+need_kitchen=1
+source bench/setup.sh
+echo "kitchen frames START..$((end - 1)), first pose given, ${voxel} m voxels"
+for start in $starts; do
+  ./target/release/depthmesh reconstruct "$data" --frames "$start..$end" --voxel "$voxel" --track \
+    --quiet --out "$work/ours-$start"
+  # Every frame gets a pose: a lost one the last good pose before it.
+  python3 - "$work/ours-$start/trajectory.txt" "$start" "$end" > "$work/depthmesh-$start.txt" <<'PY'
+import sys
+poses = {}
+for line in open(sys.argv[1]):
+    if line.strip() and not line.startswith('#'):
+        poses[int(float(line.split()[0]))] = line.split(None, 1)[1]
+last = None
+for frame in range(int(sys.argv[2]), int(sys.argv[3])):
+    last = poses.get(frame, last)
+    print(f"{frame} {last}", end='')
+PY
+  ours_ate=$("$PY" "$shared/tools/trajectory_error.py" "$work/depthmesh-$start.txt" --frames-folder "$data" | tail -1)
+  theirs=$("$PY" "$shared/tools/open3d_slam.py" "$data" --start "$start" --end "$end" --voxel "$voxel" \
+    --block-resolution 8 --trunc-voxels 4 --trajectory "$work/open3d-$start.txt" | tail -1)
+  theirs_ate=$("$PY" "$shared/tools/trajectory_error.py" "$work/open3d-$start.txt" --frames-folder "$data" | tail -1)
+  python3 - "$start" "$work/ours-$start/summary.json" "$ours_ate" "$theirs" "$theirs_ate" <<'PY'
+import json, sys
+ours = json.load(open(sys.argv[2])); ate = json.loads(sys.argv[3])
+theirs = json.loads(sys.argv[4]); theirs_ate = json.loads(sys.argv[5])
+print(f"start {sys.argv[1]:>4}: {ours['frames']} frames | depthmesh lost {ours['lost_frames']}, "
+      f"ATE {ate['ate_rmse_cm']:.2f} cm (aligned {ate['ate_rmse_aligned_cm']:.2f}), {ours['fps']:.1f} frames/s | "
+      f"Open3D lost {theirs['lost']}, ATE {theirs_ate['ate_rmse_cm']:.2f} cm "
+      f"(aligned {theirs_ate['ate_rmse_aligned_cm']:.2f}), {theirs['fps']:.1f} frames/s | "
+      f"ratio {ours['fps'] / theirs['fps']:.2f}x")
+PY
+done
