@@ -326,9 +326,8 @@ struct Match {
 /// Sums over the frame points with a normal, every `step`-th point of every
 /// `step`-th row, each with its match in the model if it has one: `add`
 /// puts a point's term into its row's sums, and the rows are totalled with
-/// [`Accumulate::add_row`]. Sums are per row before they join the total, so
-/// a total in `f64` of `f32` rows does not depend on how the rows were
-/// split between threads.
+/// [`Accumulate::add_row`] (for the normal equations, each row's `f32`
+/// sums join an `f64` total, as [`RowSums`] says).
 fn fold_matches<R: Accumulate>(
     frame: &Level,
     model: &Level,
