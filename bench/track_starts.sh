@@ -29,17 +29,7 @@ for start in $starts; do
   ./target/release/depthmesh reconstruct "$data" --frames "$start..$end" --voxel "$voxel" --track \
     --quiet --out "$work/ours-$start"
   # Every frame gets a pose: a lost one the last good pose before it.
-  python3 - "$work/ours-$start/trajectory.txt" "$start" "$end" > "$work/depthmesh-$start.txt" <<'PY'
-import sys
-poses = {}
-for line in open(sys.argv[1]):
-    if line.strip() and not line.startswith('#'):
-        poses[int(float(line.split()[0]))] = line.split(None, 1)[1]
-last = None
-for frame in range(int(sys.argv[2]), int(sys.argv[3])):
-    last = poses.get(frame, last)
-    print(f"{frame} {last}", end='')
-PY
+  python3 bench/fill_lost_poses.py "$work/ours-$start/trajectory.txt" "$start" "$end" > "$work/depthmesh-$start.txt"
   ours_ate=$("$PY" "$shared/tools/trajectory_error.py" "$work/depthmesh-$start.txt" --frames-folder "$data" | tail -1)
   theirs=$("$PY" "$shared/tools/open3d_slam.py" "$data" --start "$start" --end "$end" --voxel "$voxel" \
     --block-resolution 8 --trunc-voxels 4 --trajectory "$work/open3d-$start.txt" | tail -1)

@@ -43,17 +43,7 @@ if ((stride > 1)); then
 fi
 ./target/release/depthmesh reconstruct "$data" --frames "0..$end" --voxel "$voxel" --track --quiet --out "$work/ours"
 # Every frame 0..end-1 gets a pose: a lost one the last good pose before it.
-python3 - "$work/ours/trajectory.txt" "$end" > "$work/depthmesh.txt" <<'PY'
-import sys
-poses = {}
-for line in open(sys.argv[1]):
-    if line.strip() and not line.startswith('#'):
-        poses[int(float(line.split()[0]))] = line.split(None, 1)[1]
-last = None
-for frame in range(int(sys.argv[2])):
-    last = poses.get(frame, last)
-    print(f"{frame} {last}", end='')
-PY
+python3 bench/fill_lost_poses.py "$work/ours/trajectory.txt" 0 "$end" > "$work/depthmesh.txt"
 ours_ate=$("$PY" "$shared/tools/trajectory_error.py" "$work/depthmesh.txt" --frames-folder "$data" | tail -1)
 theirs=$("$PY" "$shared/tools/open3d_slam.py" "$data" --end "$end" --voxel "$voxel" \
   --block-resolution 8 --trunc-voxels 4 --trajectory "$work/open3d.txt" | tail -1)
