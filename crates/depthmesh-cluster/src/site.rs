@@ -173,16 +173,26 @@ impl Site {
         let leases = open_kv(&js, &bucket("leases"), lease_ttl, lease.is_some()).await?;
         let workers = open_kv(&js, &bucket("workers"), lease_ttl, lease.is_some()).await?;
         let shards = open_kv(&js, &bucket("shards"), Duration::ZERO, false).await?;
-        let checkpoints = match js.get_object_store(format!("dm-{name}-checkpoints")).await {
+        let store = format!("dm-{name}-checkpoints");
+        let checkpoints = match js.get_object_store(&store).await {
             Ok(s) => s,
-            Err(_) => js
+            Err(_) => match js
                 .create_object_store(object_store::Config {
-                    bucket: format!("dm-{name}-checkpoints"),
+                    bucket: store.clone(),
                     storage: stream::StorageType::File,
                     ..Default::default()
                 })
                 .await
-                .map_err(|e| ClusterError::bus("cannot create the checkpoint store", e))?,
+            {
+                Ok(s) => s,
+                // Another process may have created it meanwhile: three
+                // workers started together, one failed with "subjects
+                // overlap with an existing stream".
+                Err(e) => js
+                    .get_object_store(&store)
+                    .await
+                    .map_err(|_| ClusterError::bus("cannot create the checkpoint store", e))?,
+            },
         };
         let lease_ttl = match leases.status().await {
             Ok(s) if s.max_age() > Duration::ZERO => s.max_age(),
