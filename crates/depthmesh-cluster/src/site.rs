@@ -155,18 +155,21 @@ impl Site {
 
     /// The site's resources on the bus `js`, made where missing.
     async fn build(js: jetstream::Context, name: &str, lease: Option<Duration>) -> Result<Site> {
-        let stream = js
-            .get_or_create_stream(stream::Config {
-                name: format!("DM_{name}"),
+        let stream_name = format!("DM_{name}");
+        let stream = made_or_opened(
+            js.get_or_create_stream(stream::Config {
+                name: stream_name.clone(),
                 subjects: vec![format!("dm.{name}.posed.*"), format!("dm.{name}.raw.*")],
                 storage: stream::StorageType::File,
                 // A sensor that publishes a frame again (a restarted
                 // client) is kept once within this window.
                 duplicate_window: Duration::from_secs(600),
                 ..Default::default()
-            })
-            .await
-            .map_err(|e| ClusterError::bus("cannot open the site's stream", e))?;
+            }),
+            || js.get_stream(&stream_name),
+        )
+        .await
+        .map_err(|e| ClusterError::bus("cannot open the site's stream", e))?;
         let bucket = |suffix: &str| format!("dm-{name}-{suffix}");
         let meta = open_kv(&js, &bucket("meta"), Duration::ZERO, false).await?;
         let lease_ttl = lease.unwrap_or(DEFAULT_LEASE);
@@ -176,23 +179,16 @@ impl Site {
         let store = format!("dm-{name}-checkpoints");
         let checkpoints = match js.get_object_store(&store).await {
             Ok(s) => s,
-            Err(_) => match js
-                .create_object_store(object_store::Config {
+            Err(_) => made_or_opened(
+                js.create_object_store(object_store::Config {
                     bucket: store.clone(),
                     storage: stream::StorageType::File,
                     ..Default::default()
-                })
-                .await
-            {
-                Ok(s) => s,
-                // Another process may have created it meanwhile: three
-                // workers started together, one failed with "subjects
-                // overlap with an existing stream".
-                Err(e) => js
-                    .get_object_store(&store)
-                    .await
-                    .map_err(|_| ClusterError::bus("cannot create the checkpoint store", e))?,
-            },
+                }),
+                || js.get_object_store(&store),
+            )
+            .await
+            .map_err(|e| ClusterError::bus("cannot create the checkpoint store", e))?,
         };
         let lease_ttl = match leases.status().await {
             Ok(s) if s.max_age() > Duration::ZERO => s.max_age(),
@@ -436,6 +432,24 @@ async fn give_age(js: &jetstream::Context, config: stream::Config) -> Result<(),
         .await
         .map(|_| ())
         .map_err(|e| e.to_string())
+}
+
+/// What `make` made or, if it failed, what `open` then finds: another
+/// process may have made it between this one's look and its create
+/// (twelve opening a new site at once: "subjects overlap with an existing
+/// stream", for the site's stream and for the checkpoint store). The
+/// create's error is kept when the open fails too.
+async fn made_or_opened<T, E, F, O>(
+    make: impl std::future::Future<Output = std::result::Result<T, E>>,
+    open: impl FnOnce() -> O,
+) -> std::result::Result<T, E>
+where
+    O: std::future::Future<Output = std::result::Result<T, F>>,
+{
+    match make.await {
+        Ok(made) => Ok(made),
+        Err(e) => open().await.map_err(|_| e),
+    }
 }
 
 /// Opens the key-value bucket `bucket` (one value per key, entries that
