@@ -188,15 +188,12 @@ pub fn equations(
         assoc,
         1,
         |row: &mut RowSums, m| {
-            row.candidates += 1;
-            if let Some(m) = m {
-                let s = weights[normal_bin(m.frame_normal)];
-                row.add(
-                    jacobian_row(m.point, m.model_normal).map(|j| j * s),
-                    m.offset.dot(m.model_normal) * s,
-                    m.point.length_squared(),
-                );
-            }
+            let s = weights[normal_bin(m.frame_normal)];
+            row.add(
+                jacobian_row(m.point, m.model_normal).map(|j| j * s),
+                m.offset.dot(m.model_normal) * s,
+                m.point.length_squared(),
+            );
         },
     )
 }
@@ -230,10 +227,6 @@ pub fn block_equations(
         assoc,
         block,
         |row: &mut RowSums, m| {
-            row.candidates += 1;
-            let Some(m) = m else {
-                return;
-            };
             // Around the point's own pixel: with a window the match may be a
             // neighbour's, but weighing is asked for only while the camera is
             // followed, where the window is 0.
@@ -291,9 +284,6 @@ pub fn facing_information(
         assoc,
         1,
         |(sum, inliers): &mut (f64, usize), m| {
-            let Some(m) = m else {
-                return;
-            };
             let mut row = jacobian_row(m.point, m.model_normal);
             for rotation in &mut row[..3] {
                 *rotation /= range as f32;
@@ -324,8 +314,9 @@ struct Match {
 }
 
 /// Sums over the frame points with a normal, every `step`-th point of every
-/// `step`-th row, each with its match in the model if it has one: `add`
-/// puts a point's term into its row's sums, and the rows are totalled with
+/// `step`-th row: each counts as a candidate ([`Accumulate::candidate`]),
+/// and `add` puts the term of one matched in the model into its row's
+/// sums; the rows are totalled with
 /// [`Accumulate::add_row`] (for the normal equations, each row's `f32`
 /// sums join an `f64` total, as [`RowSums`] says).
 fn fold_matches<R: Accumulate>(
@@ -334,7 +325,7 @@ fn fold_matches<R: Accumulate>(
     frame_to_model: &Pose,
     assoc: &Association,
     step: usize,
-    add: impl Fn(&mut R, Option<Match>) + Sync,
+    add: impl Fn(&mut R, Match) + Sync,
 ) -> R::Total {
     let (w, _) = frame.size();
     let Some(mk) = model.intrinsics else {
@@ -357,10 +348,10 @@ fn fold_matches<R: Accumulate>(
             while x < w {
                 let (p, n) = (points[x], normals[x]);
                 if n != Vec3::ZERO {
-                    add(
-                        &mut row,
-                        matched(model, &mk, frame_to_model, assoc, max_d2, p, n),
-                    );
+                    row.candidate();
+                    if let Some(m) = matched(model, &mk, frame_to_model, assoc, max_d2, p, n) {
+                        add(&mut row, m);
+                    }
                 }
                 x += step;
             }
@@ -374,6 +365,9 @@ fn fold_matches<R: Accumulate>(
 trait Accumulate: Default {
     /// The sum over all rows.
     type Total: Default + Send;
+    /// Counts a frame point tried for a match, matched or not (nothing, if
+    /// the sums do not count them).
+    fn candidate(&mut self) {}
     /// Adds one row's sums to `total`.
     fn add_row(total: &mut Self::Total, row: Self);
     /// Two totals' sum.
@@ -382,6 +376,9 @@ trait Accumulate: Default {
 
 impl Accumulate for RowSums {
     type Total = Equations;
+    fn candidate(&mut self) {
+        self.candidates += 1;
+    }
     fn add_row(total: &mut Equations, row: RowSums) {
         total.add_row(&row);
     }
