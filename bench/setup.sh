@@ -3,7 +3,9 @@
 # the 7-Scenes kitchen frames (`data`; a script that needs them sets
 # need_kitchen=1 first), sets up the reference Python (PY), builds depthmesh
 # in release and makes a scratch folder (work) removed on exit; defines
-# frames_folder and link_frame, for folders of links to kitchen frames.
+# frames_folder and link_frame, for folders of links to kitchen frames,
+# and track_both, which tracks frames with depthmesh and Open3D and scores
+# both trajectories.
 # Run from the repository root.
 shared=$(realpath -m "${DEPTHMESH_SHARED:-../shared}")
 data=$shared/data/7scenes-redkitchen
@@ -32,4 +34,21 @@ link_frame() {
   for f in "$data"/frame-$(printf %06d "$1").*; do
     ln -s "$f" "$3/frame-$(printf %06d "$2").${f#*/frame-??????.}"
   done
+}
+
+# Tracks frames $2..$3-1 of folder $1 from the first pose with both tools,
+# $4 m voxels, into folder $work/$5: depthmesh's run in ours/, Open3D's
+# dense SLAM (8³ blocks, 4-voxel truncation, as depthmesh) alongside, and
+# both trajectories with every frame posed (depthmesh's lost frames at the
+# last good pose, as Open3D keeps them) in depthmesh.txt and open3d.txt.
+# Sets ours_ate, theirs (Open3D's run) and theirs_ate: JSON lines.
+track_both() {
+  local out=$work/$5
+  mkdir -p "$out"
+  ./target/release/depthmesh reconstruct "$1" --frames "$2..$3" --voxel "$4" --track --quiet --out "$out/ours"
+  python3 bench/fill_lost_poses.py "$out/ours/trajectory.txt" "$2" "$3" > "$out/depthmesh.txt"
+  ours_ate=$("$PY" "$shared/tools/trajectory_error.py" "$out/depthmesh.txt" --frames-folder "$1" | tail -1)
+  theirs=$("$PY" "$shared/tools/open3d_slam.py" "$1" --start "$2" --end "$3" --voxel "$4" \
+    --block-resolution 8 --trunc-voxels 4 --trajectory "$out/open3d.txt" | tail -1)
+  theirs_ate=$("$PY" "$shared/tools/trajectory_error.py" "$out/open3d.txt" --frames-folder "$1" | tail -1)
 }

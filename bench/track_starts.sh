@@ -26,15 +26,8 @@ need_kitchen=1
 source bench/setup.sh
 echo "kitchen frames START..$((end - 1)), first pose given, ${voxel} m voxels"
 for start in $starts; do
-  ./target/release/depthmesh reconstruct "$data" --frames "$start..$end" --voxel "$voxel" --track \
-    --quiet --out "$work/ours-$start"
-  # Every frame gets a pose: a lost one the last good pose before it.
-  python3 bench/fill_lost_poses.py "$work/ours-$start/trajectory.txt" "$start" "$end" > "$work/depthmesh-$start.txt"
-  ours_ate=$("$PY" "$shared/tools/trajectory_error.py" "$work/depthmesh-$start.txt" --frames-folder "$data" | tail -1)
-  theirs=$("$PY" "$shared/tools/open3d_slam.py" "$data" --start "$start" --end "$end" --voxel "$voxel" \
-    --block-resolution 8 --trunc-voxels 4 --trajectory "$work/open3d-$start.txt" | tail -1)
-  theirs_ate=$("$PY" "$shared/tools/trajectory_error.py" "$work/open3d-$start.txt" --frames-folder "$data" | tail -1)
-  python3 - "$start" "$work/ours-$start/summary.json" "$ours_ate" "$theirs" "$theirs_ate" <<'PY'
+  track_both "$data" "$start" "$end" "$voxel" "start-$start"
+  python3 - "$start" "$work/start-$start/ours/summary.json" "$ours_ate" "$theirs" "$theirs_ate" <<'PY'
 import json, sys
 ours = json.load(open(sys.argv[2])); ate = json.loads(sys.argv[3])
 theirs = json.loads(sys.argv[4]); theirs_ate = json.loads(sys.argv[5])

@@ -41,14 +41,8 @@ if ((stride > 1)); then
   data=$work/strided
   end=$count
 fi
-./target/release/depthmesh reconstruct "$data" --frames "0..$end" --voxel "$voxel" --track --quiet --out "$work/ours"
-# Every frame 0..end-1 gets a pose: a lost one the last good pose before it.
-python3 bench/fill_lost_poses.py "$work/ours/trajectory.txt" 0 "$end" > "$work/depthmesh.txt"
-ours_ate=$("$PY" "$shared/tools/trajectory_error.py" "$work/depthmesh.txt" --frames-folder "$data" | tail -1)
-theirs=$("$PY" "$shared/tools/open3d_slam.py" "$data" --end "$end" --voxel "$voxel" \
-  --block-resolution 8 --trunc-voxels 4 --trajectory "$work/open3d.txt" | tail -1)
-theirs_ate=$("$PY" "$shared/tools/trajectory_error.py" "$work/open3d.txt" --frames-folder "$data" | tail -1)
-python3 - "$work/ours/summary.json" "$ours_ate" "$theirs" "$theirs_ate" <<'PY'
+track_both "$data" 0 "$end" "$voxel" all
+python3 - "$work/all/ours/summary.json" "$ours_ate" "$theirs" "$theirs_ate" <<'PY'
 import json, sys
 ours = json.load(open(sys.argv[1])); ate = json.loads(sys.argv[2])
 theirs = json.loads(sys.argv[3]); theirs_ate = json.loads(sys.argv[4])
@@ -60,4 +54,4 @@ print(f"matched  depthmesh {ate['matched']} poses   Open3D {theirs_ate['matched'
 print(f"ATE      depthmesh {ate['ate_rmse_cm']:.2f} cm (aligned {ate['ate_rmse_aligned_cm']:.2f}, max {ate['max_cm']:.2f})   "
       f"Open3D {theirs_ate['ate_rmse_cm']:.2f} cm (aligned {theirs_ate['ate_rmse_aligned_cm']:.2f}, max {theirs_ate['max_cm']:.2f})")
 PY
-"$PY" bench/trajectory_consistency.py "$data" "$work/depthmesh.txt" "$work/open3d.txt" folder --frames "$end"
+"$PY" bench/trajectory_consistency.py "$data" "$work/all/depthmesh.txt" "$work/all/open3d.txt" folder --frames "$end"
