@@ -316,9 +316,9 @@ struct Match {
 /// Sums over the frame points with a normal, every `step`-th point of every
 /// `step`-th row: each counts as a candidate ([`Accumulate::candidate`]),
 /// and `add` puts the term of one matched in the model into its row's
-/// sums; the rows are totalled with
-/// [`Accumulate::add_row`] (for the normal equations, each row's `f32`
-/// sums join an `f64` total, as [`RowSums`] says).
+/// sums; the rows are totalled with [`Accumulate::add_row`] (for the
+/// normal equations, each row's `f32` sums join an `f64` total, as
+/// [`RowSums`] says).
 fn fold_matches<R: Accumulate>(
     frame: &Level,
     model: &Level,
