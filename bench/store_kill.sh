@@ -17,12 +17,12 @@ frames=${1:-300}
 kills=${2:-3}
 seconds=${3:-2.5}
 RANDOM=${SEED:-1}
-if [[ $seconds == *..* ]]; then
-  range=(${seconds/../ })
-  if ((${#range[@]} != 2)); then
-    echo "error: SECONDS must be a number or MIN..MAX, got \"$seconds\"" >&2
-    exit 1
-  fi
+number='([0-9]*\.)?[0-9]+'
+if [[ $seconds =~ ^($number)\.\.($number)$ ]]; then
+  range=("${BASH_REMATCH[1]}" "${BASH_REMATCH[3]}")
+elif ! [[ $seconds =~ ^$number$ ]]; then
+  echo "error: SECONDS must be a number or MIN..MAX, got \"$seconds\"" >&2
+  exit 1
 fi
 need_kitchen=1
 source bench/setup.sh
@@ -32,8 +32,8 @@ track=()
 "$bin" reconstruct "$data" --frames "0..$frames" "${track[@]}" --quiet --out "$work/reference" >/dev/null
 for k in $(seq "$kills"); do
   # Drawn before the run starts, so the delay counts from its start, and
-  # outside the substitution, where $RANDOM would not advance this shell's
-  # sequence.
+  # outside the substitution: a subshell reseeds $RANDOM, so a draw there
+  # would not follow SEED.
   if [[ -v range ]]; then
     draw=$RANDOM
     delay=$(python3 -c "import sys; a, b = map(float, sys.argv[1:3]); print(round(a + (b - a) * int(sys.argv[3]) / 32767, 3))" "${range[@]}" "$draw")
