@@ -810,6 +810,7 @@ fn pose_state_json(p: &PoseState) -> Value {
             "lost_streak": t.lost_streak,
             "velocity_known": t.velocity_known,
             "fine_first": t.fine_first,
+            "last_conditioning": t.last_conditioning,
             "keyframe_codes": t.keyframe_codes,
             "keyframe_poses": t.keyframe_poses.iter().map(records::pose_array).collect::<Vec<_>>(),
         })),
@@ -839,6 +840,9 @@ fn pose_state_from(v: &Value) -> std::result::Result<PoseState, String> {
             // Absent from sessions saved before the tracker kept it: those
             // tried every frame against the coarse view first.
             fine_first: t["fine_first"].as_bool().unwrap_or(false),
+            // Absent likewise: the first frame after it is aligned at full
+            // resolution.
+            last_conditioning: t["last_conditioning"].as_f64().unwrap_or(0.0),
             keyframe_codes: t["keyframe_codes"]
                 .as_array()
                 .ok_or("tracking: no keyframe codes")?
