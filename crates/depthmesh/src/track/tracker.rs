@@ -50,13 +50,13 @@ const FINE_VIEW_NORMAL_STEP: usize = 2;
 /// before it left the view conditioned at least this many times
 /// [`TrackerConfig::refine_conditioning`]. At full resolution sixteen frame
 /// points share each pixel of the quarter-resolution model view, its point
-/// and normal; four say as much of the pose where the view pins every
-/// direction, for a fifth less of a frame's time (the kitchen's 300
-/// frames: their trajectory within 2 mm of the one at full resolution).
-/// Where the view is weak the points left out are what pins it: without
-/// the bar, the sofa room's trajectories ended 0.4 cm further off on
-/// average over twelve noise seeds, and one camera was lost; with it,
-/// 0.2 cm, none lost.
+/// and normal; where the view pins every direction, four pin the pose
+/// nearly as well for a fifth less of a frame's time (the kitchen's 300
+/// frames: an ATE 2 mm larger than at full resolution, the poses at most
+/// 1.2 cm apart). Where the view is weak the points left out are what pins
+/// it: without the bar, the sofa room's trajectories ended 0.4 cm further
+/// off on average over twelve noise seeds, and one camera was lost; with
+/// it, 0.2 cm, none lost.
 const COARSER_FRAME_CONDITIONING: f64 = 4.0;
 
 /// The iterations a level takes past its schedule (see
