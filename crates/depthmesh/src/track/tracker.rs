@@ -1405,12 +1405,9 @@ impl Tracker {
     /// was aligned (learning it as a keyframe when it was tracked well),
     /// nowhere when it was lost.
     fn conclude(&mut self, result: Tracked) -> Tracked {
-        self.last_conditioning = match result.lost {
-            None => result.conditioning,
-            Some(_) => 0.0,
-        };
         let pose = match result.lost {
             None => {
+                self.last_conditioning = result.conditioning;
                 // After a loss the motion spans several frames: no
                 // velocity is measured, and the next frame's start is
                 // guessed below.
@@ -1437,6 +1434,7 @@ impl Tracker {
             Some(_) => {
                 self.lost_streak += 1;
                 self.velocity_known = false;
+                self.last_conditioning = 0.0;
                 self.last_good
             }
         };
