@@ -1135,6 +1135,24 @@ impl Tracker {
         self.align(base, predicted, search).0
     }
 
+    /// How many frame levels coarser than the model view's each level is
+    /// paired with: one or more while the camera is followed and the frame
+    /// before left the view well conditioned (see
+    /// [`COARSER_FRAME_CONDITIONING`]), as far as the frame level stays at
+    /// least twice the model view's width; else none.
+    fn frame_coarsening(&self, recovering: bool) -> usize {
+        if recovering
+            || !self.velocity_known
+            || self.last_conditioning < COARSER_FRAME_CONDITIONING * self.config.refine_conditioning
+        {
+            return 0;
+        }
+        let model_width = self.model.levels[0].size().0;
+        (1..LEVELS)
+            .take_while(|&l| self.frame.levels[l].size().0 >= 2 * model_width)
+            .count()
+    }
+
     /// [`Tracker::icp`], with the frame's agreement with the map's view at
     /// the pose found when it was verified (after a loss; default else).
     fn align(&self, base: Pose, predicted: Pose, search: Search) -> (Tracked, Agreement) {
@@ -1155,18 +1173,7 @@ impl Tracker {
             window: 0,
         };
         let frame_width = self.intrinsics.width as usize;
-        let coarser = if !recovering
-            && self.velocity_known
-            && self.last_conditioning
-                >= COARSER_FRAME_CONDITIONING * self.config.refine_conditioning
-        {
-            let model_width = self.model.levels[0].size().0;
-            (1..LEVELS)
-                .take_while(|&l| self.frame.levels[l].size().0 >= 2 * model_width)
-                .count()
-        } else {
-            0
-        };
+        let coarser = self.frame_coarsening(recovering);
         let mut relative = predicted;
         let mut iterations = 0;
         // The last system solved: the alignment is judged by it (its
@@ -1474,7 +1481,12 @@ pub(super) mod tests {
     }
 
     fn sensor(noise: NoiseModel) -> SimulatedSensor {
-        let k = Intrinsics::from_vertical_fov(320, 240, 60.0);
+        sensor_of_width(320, noise)
+    }
+
+    /// A 60° sensor `width` pixels wide with a 4:3 image.
+    fn sensor_of_width(width: u32, noise: NoiseModel) -> SimulatedSensor {
+        let k = Intrinsics::from_vertical_fov(width, width * 3 / 4, 60.0);
         SimulatedSensor::new(k, 0.4, 6.0, noise, 1).unwrap()
     }
 
@@ -1487,7 +1499,21 @@ pub(super) mod tests {
     /// Tracks `poses` (the first is given) against a perfect map: the scene
     /// itself, rendered from the tracker's last good pose.
     fn track_sequence(scene: &Scene, poses: &[Pose]) -> Vec<Tracked> {
-        let mut sensor = sensor(NoiseModel::None);
+        track_sequence_coarsening(scene, poses, 320)
+            .into_iter()
+            .map(|(_, tracked)| tracked)
+            .collect()
+    }
+
+    /// [`track_sequence`] with a sensor `width` pixels wide, each frame
+    /// with the frame coarsening its alignment starts from (the tracker's
+    /// state when it comes).
+    fn track_sequence_coarsening(
+        scene: &Scene,
+        poses: &[Pose],
+        width: u32,
+    ) -> Vec<(usize, Tracked)> {
+        let mut sensor = sensor_of_width(width, NoiseModel::None);
         let mut tracker =
             Tracker::new(TrackerConfig::default(), sensor.intrinsics, poses[0]).unwrap();
         let mut model_sensor =
@@ -1498,7 +1524,21 @@ pub(super) mod tests {
             .map(|pose| {
                 let model = model_sensor.capture(scene, 1, &tracker.last_good()).depth;
                 let frame = sensor.capture(scene, 1, pose).depth;
-                tracker.track_against(&frame, &model)
+                (
+                    tracker.frame_coarsening(false),
+                    tracker.track_against(&frame, &model),
+                )
+            })
+            .collect()
+    }
+
+    /// 2 cm and 1° per frame around the room's table, rising and tilting.
+    fn around_the_table() -> Vec<Pose> {
+        (0..15)
+            .map(|i| {
+                let a = (i as f32 * 1.0).to_radians();
+                let eye = Vec3::new(2.0 * a.cos(), 1.3 + 0.005 * i as f32, 2.0 * a.sin());
+                Pose::look_at(eye, Vec3::new(0.0, 0.4 + 0.01 * i as f32, 0.0), Vec3::Y)
             })
             .collect()
     }
@@ -1506,14 +1546,7 @@ pub(super) mod tests {
     #[test]
     fn follows_a_known_motion_within_a_millimetre_and_a_tenth_of_a_degree() {
         let room = scene(ROOM);
-        // 2 cm and 1° per frame around the table, rising and tilting.
-        let poses: Vec<Pose> = (0..15)
-            .map(|i| {
-                let a = (i as f32 * 1.0).to_radians();
-                let eye = Vec3::new(2.0 * a.cos(), 1.3 + 0.005 * i as f32, 2.0 * a.sin());
-                Pose::look_at(eye, Vec3::new(0.0, 0.4 + 0.01 * i as f32, 0.0), Vec3::Y)
-            })
-            .collect();
+        let poses = around_the_table();
         for (tracked, truth) in track_sequence(&room, &poses).iter().zip(&poses[1..]) {
             assert_eq!(tracked.lost, None);
             let (t, r) = pose_error(&tracked.pose, truth);
@@ -1768,6 +1801,32 @@ pub(super) mod tests {
             // What it does not comes from the motion model, which had no
             // motion to go by: the camera stays where it started.
             assert!(t.pose.translation.x.abs() < 1e-3, "{t:?}");
+        }
+    }
+
+    /// A followed frame meets the model view at a coarser frame level only
+    /// after a frame that left the view well conditioned: the room from
+    /// its second followed frame on, never the wall, which pins three
+    /// directions alone.
+    #[test]
+    fn only_a_well_conditioned_view_is_followed_at_a_coarser_frame_level() {
+        let room = scene(ROOM);
+        let levels: Vec<usize> = track_sequence_coarsening(&room, &around_the_table(), 640)
+            .iter()
+            .map(|(coarsening, tracked)| {
+                assert_eq!(tracked.lost, None);
+                *coarsening
+            })
+            .collect();
+        // No motion is known for the first frame, nor the view's
+        // conditioning; the 640-pixel frame's next level (320) is twice the
+        // model view's width (160), the one after it is not.
+        assert_eq!(levels[0], 0);
+        assert!(levels[2..].iter().all(|&l| l == 1), "{levels:?}");
+        let (wall, poses) = sliding_along_a_wall();
+        for (coarsening, tracked) in track_sequence_coarsening(&wall, &poses, 640) {
+            assert_eq!(tracked.weak_directions, 3, "{tracked:?}");
+            assert_eq!(coarsening, 0);
         }
     }
 
