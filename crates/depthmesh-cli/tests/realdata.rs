@@ -35,8 +35,13 @@ fn kitchen() -> PathBuf {
 /// Runs `reconstruct` on frames [`FRAMES`] of `data` with `extra` flags,
 /// into a scratch folder named for `name`, which it returns.
 fn reconstruct(data: &Path, name: &str, extra: &[&str]) -> PathBuf {
+    reconstruct_frames(data, FRAMES, name, extra)
+}
+
+/// [`reconstruct`] on the frames `frames` (`A..B`).
+fn reconstruct_frames(data: &Path, frames: &str, name: &str, extra: &[&str]) -> PathBuf {
     let out = scratch(name);
-    let mut args = vec!["reconstruct", data.to_str().unwrap(), "--frames", FRAMES];
+    let mut args = vec!["reconstruct", data.to_str().unwrap(), "--frames", frames];
     args.extend(extra);
     args.extend(["--quiet", "--out", out.to_str().unwrap()]);
     ok(&depthmesh(&args));
@@ -68,6 +73,42 @@ fn kitchen_frames_are_tracked_within_two_centimetres_without_loss() {
     assert!(ate < 2.0, "ATE {ate} cm");
     let worst = e["ate_max_cm"].as_f64().unwrap();
     assert!(worst < 5.5, "worst pose {worst} cm off");
+    std::fs::remove_dir_all(out).unwrap();
+}
+
+/// Every 15th frame lands up to 9.7 cm and 7.5° from where the last
+/// motion predicts it (the folder's poses; a median of 3.6 cm and 3.2°):
+/// the scheduled iterations leave such a frame short of its pose, and only
+/// those past the schedule bring it in. A view the kitchen already pins
+/// well is pinned little better there, so the rule that keeps them also
+/// counts the points they bring into agreement: judged by the view's
+/// conditioning alone, three of the 20 frames were lost.
+#[test]
+#[ignore = "needs the 7-Scenes frames; run by .ci/realdata"]
+fn every_fifteenth_kitchen_frame_is_tracked_without_loss() {
+    let data = kitchen();
+    let out = reconstruct_frames(
+        &data,
+        "0..300",
+        "real-stride",
+        &["--stride", "15", "--track"],
+    );
+    let s = summary(&out);
+    let e = eval_json_with(
+        &out.join("trajectory.txt"),
+        &data,
+        &["--min-coverage", "0.05"],
+    );
+    println!(
+        "tracked every 15th kitchen frame of 0..300: lost frames {}, {e}",
+        s["lost_frames"]
+    );
+    assert_eq!(s["lost_frames"], 0, "{s}");
+    assert_eq!(e["matched"], 20);
+    // Measured 4.58 cm (2.15 after rigid alignment); every frame tracked,
+    // as the README's strides table gives it.
+    let ate = e["ate_rmse_cm"].as_f64().unwrap();
+    assert!(ate < 6.0, "ATE {ate} cm");
     std::fs::remove_dir_all(out).unwrap();
 }
 
