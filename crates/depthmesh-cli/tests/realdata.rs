@@ -32,14 +32,9 @@ fn kitchen() -> PathBuf {
     kitchen
 }
 
-/// Runs `reconstruct` on frames [`FRAMES`] of `data` with `extra` flags,
-/// into a scratch folder named for `name`, which it returns.
-fn reconstruct(data: &Path, name: &str, extra: &[&str]) -> PathBuf {
-    reconstruct_frames(data, FRAMES, name, extra)
-}
-
-/// [`reconstruct`] on the frames `frames` (`A..B`).
-fn reconstruct_frames(data: &Path, frames: &str, name: &str, extra: &[&str]) -> PathBuf {
+/// Runs `reconstruct` on frames `frames` (`A..B`) of `data` with `extra`
+/// flags, into a scratch folder named for `name`, which it returns.
+fn reconstruct(data: &Path, frames: &str, name: &str, extra: &[&str]) -> PathBuf {
     let out = scratch(name);
     let mut args = vec!["reconstruct", data.to_str().unwrap(), "--frames", frames];
     args.extend(extra);
@@ -52,20 +47,32 @@ fn expected_path() -> PathBuf {
     PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("tests/kitchen_expected.json")
 }
 
+/// Tracks kitchen frames `frames` with `extra` flags (`--stride`), asserts
+/// none was lost, and gives the trajectory's error against the folder's
+/// poses (`eval trajectory` with `eval_extra`).
+fn tracked_without_loss(frames: &str, extra: &[&str], eval_extra: &[&str]) -> Value {
+    let data = kitchen();
+    let mut flags = vec!["--track"];
+    flags.extend(extra);
+    // A folder of its own per run: the tests may run side by side.
+    let name = format!("real-track{}", extra.concat());
+    let out = reconstruct(&data, frames, &name, &flags);
+    let s = summary(&out);
+    let e = eval_json_with(&out.join("trajectory.txt"), &data, eval_extra);
+    println!(
+        "tracked kitchen frames {frames} {extra:?}: lost frames {}, {e}",
+        s["lost_frames"]
+    );
+    assert_eq!(s["lost_frames"], 0, "{s}");
+    std::fs::remove_dir_all(out).unwrap();
+    e
+}
+
 #[test]
 #[ignore = "needs the 7-Scenes frames; run by .ci/realdata"]
 fn kitchen_frames_are_tracked_within_two_centimetres_without_loss() {
-    let data = kitchen();
-    let out = reconstruct(&data, "real-track", &["--track"]);
-    let s = summary(&out);
     // Judged against the same frames' poses: every one must be covered.
-    let e = eval_json_with(&out.join("trajectory.txt"), &data, &["--frames", FRAMES]);
-    println!(
-        "tracked kitchen frames {FRAMES}: lost frames {}, {e}",
-        s["lost_frames"]
-    );
-    // Every frame tracked (measured: none lost) and scored.
-    assert_eq!(s["lost_frames"], 0, "{s}");
+    let e = tracked_without_loss(FRAMES, &[], &["--frames", FRAMES]);
     assert_eq!(e["matched"], 100);
     // Measured 1.49 cm RMSE and 4.19 cm at worst against the folder's
     // poses; the bounds are the project's 2 cm target and 5.5 cm.
@@ -73,7 +80,6 @@ fn kitchen_frames_are_tracked_within_two_centimetres_without_loss() {
     assert!(ate < 2.0, "ATE {ate} cm");
     let worst = e["ate_max_cm"].as_f64().unwrap();
     assert!(worst < 5.5, "worst pose {worst} cm off");
-    std::fs::remove_dir_all(out).unwrap();
 }
 
 /// Every 15th frame lands up to 9.7 cm and 7.5° from where the last
@@ -86,30 +92,13 @@ fn kitchen_frames_are_tracked_within_two_centimetres_without_loss() {
 #[test]
 #[ignore = "needs the 7-Scenes frames; run by .ci/realdata"]
 fn every_fifteenth_kitchen_frame_is_tracked_without_loss() {
-    let data = kitchen();
-    let out = reconstruct_frames(
-        &data,
-        "0..300",
-        "real-stride",
-        &["--stride", "15", "--track"],
-    );
-    let s = summary(&out);
-    let e = eval_json_with(
-        &out.join("trajectory.txt"),
-        &data,
-        &["--min-coverage", "0.05"],
-    );
-    println!(
-        "tracked every 15th kitchen frame of 0..300: lost frames {}, {e}",
-        s["lost_frames"]
-    );
-    assert_eq!(s["lost_frames"], 0, "{s}");
+    // The 20 frames cover 7 % of the folder's poses.
+    let e = tracked_without_loss("0..300", &["--stride", "15"], &["--min-coverage", "0.05"]);
     assert_eq!(e["matched"], 20);
-    // Measured 4.58 cm (2.15 after rigid alignment); every frame tracked,
-    // as the README's strides table gives it.
+    // Measured 4.58 cm (2.15 after rigid alignment), as the README's
+    // strides table gives it.
     let ate = e["ate_rmse_cm"].as_f64().unwrap();
     assert!(ate < 6.0, "ATE {ate} cm");
-    std::fs::remove_dir_all(out).unwrap();
 }
 
 /// Probe points for a mesh: points on its surface, the same points moved
@@ -136,7 +125,7 @@ fn distances(mesh: &Mesh, points: &[Vec3]) -> Vec<Option<f32>> {
 #[test]
 #[ignore = "needs the 7-Scenes frames; run by .ci/realdata"]
 fn kitchen_frames_fuse_into_the_expected_mesh() {
-    let out = reconstruct(&kitchen(), "real-fuse", &[]);
+    let out = reconstruct(&kitchen(), FRAMES, "real-fuse", &[]);
     let mesh = read_mesh(&out.join("mesh.ply")).unwrap();
     std::fs::remove_dir_all(out).unwrap();
     if std::env::var_os("DEPTHMESH_WRITE_EXPECTED").is_some() {
