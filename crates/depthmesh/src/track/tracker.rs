@@ -1830,7 +1830,7 @@ pub(super) mod tests {
         // conditioning; the 640-pixel frame's next level (320) is twice the
         // model view's width (160), the one after it is not.
         assert_eq!(levels[0], 0);
-        assert!(levels[2..].iter().all(|&l| l == 1), "{levels:?}");
+        assert!(levels[1..].iter().all(|&l| l == 1), "{levels:?}");
         let (wall, poses) = sliding_along_a_wall();
         for (coarsening, tracked) in track_sequence_coarsening(&wall, &poses, 640) {
             assert_eq!(tracked.weak_directions, 3, "{tracked:?}");
