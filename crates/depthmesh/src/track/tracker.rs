@@ -77,7 +77,8 @@ const COARSER_FRAME_CONDITIONING: f64 = 4.0;
 /// corridor, where only the floor and the wall are in view, they moved
 /// frames centimetres along it without lowering the residual, the motion
 /// model took that up, and the straight walks ended 10.78, 13.66 and 6.52
-/// cm off instead of 3.32, 3.36 and 3.30 (`bench/track_corridor.sh`).
+/// cm off instead of 3.32, 3.36 and 3.30 (`bench/track_corridor.sh`, on
+/// the code before a first frame's finest level stopped once settled).
 const EXTRA_ITERATIONS_GAIN: f64 = 1.25;
 
 /// The iterations past a level's schedule are kept, whatever they do to
