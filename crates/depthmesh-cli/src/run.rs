@@ -19,6 +19,9 @@ pub fn report_event(bar: &ProgressBar, frame: usize, event: Option<TrackEvent>) 
             "frame {frame}: tracking recovered after {after} lost frame{}",
             if after == 1 { "" } else { "s" }
         ),
+        Some(TrackEvent::FoundAgain(reason)) => {
+            format!("frame {frame}: tracking lost the camera ({reason}) and found it again in the same frame")
+        }
     };
     bar.suspend(|| eprintln!("{line}"));
 }
@@ -44,10 +47,12 @@ pub fn print_summary(summary: &Map<String, Value>, out: &Path, quiet: bool) {
     );
     if summary.get("tracking") == Some(&Value::Bool(true)) {
         line += &format!(
-            "; tracking lost {} time(s), {} frame(s) not fused ({:.0} % fused), {} {WEAK_FRAMES}",
+            "; tracking lost {} time(s), {} frame(s) not fused ({:.0} % fused), \
+             {} found again in the frame following lost them, {} {WEAK_FRAMES}",
             get("lost"),
             get("lost_frames"),
             100.0 * get("fused_fraction"),
+            get("recovered_frames"),
             get("weak_frames"),
         );
     }

@@ -475,7 +475,8 @@ fn a_run_that_lost_the_camera_reads_as_lost_on_the_terminal_and_in_eval() {
         &run,
         &[
             "6 frames (1 fused)",
-            "5 frame(s) not fused (17 % fused), 0 fused with a direction left to the motion model",
+            "5 frame(s) not fused (17 % fused), 0 found again in the frame following lost them, \
+             0 fused with a direction left to the motion model",
         ],
     );
     // And eval, given the run's own files, will not call it accurate.

@@ -19,11 +19,9 @@ fn a_noisy_simulated_sequence_is_tracked_within_a_centimetre() {
     // the weak-view work of the tracker).
     assert!(ate < 0.4, "ATE {ate} cm");
     let stats = std::fs::read_to_string(out.join("stats.csv")).unwrap();
-    assert!(stats
-        .lines()
-        .next()
-        .unwrap()
-        .ends_with(",conditioning,lost,icp_iterations,weak_directions,weak_axes,relocalised"));
+    assert!(stats.lines().next().unwrap().ends_with(
+        ",conditioning,lost,icp_iterations,weak_directions,weak_axes,relocalised,recovered"
+    ));
     let e = eval_json(&out.join("trajectory.txt"), &out.join("groundtruth.txt"));
     assert_eq!(e["matched"], 20);
     // Drift: the worst frame is 0.45 cm off (measured); a bound a fifth

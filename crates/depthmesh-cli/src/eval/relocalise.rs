@@ -241,7 +241,9 @@ fn refine(
     };
     let mut tracker = Tracker::restore(config, k, state)?;
     let t = tracker.track(depth, map);
-    Ok(t.lost.is_none().then_some(t.pose))
+    // A pose the search for a lost camera found is not the reference's,
+    // refined.
+    Ok((t.lost.is_none() && t.recovered_from.is_none()).then_some(t.pose))
 }
 
 /// The fraction of `frame`'s measured pixels whose depth is within

@@ -283,6 +283,7 @@ impl Feed {
             None => "given poses",
             Some(t) if t.lost.is_some() => "lost",
             Some(t) if t.relocalised => "relocalised",
+            Some(t) if t.recovered => "found again",
             Some(t) if t.weak_directions > 0 => "tracking (weak view)",
             Some(_) => "tracking",
         };

@@ -165,6 +165,8 @@ struct Tally {
     fused: usize,
     /// Fused with a direction tracking left to the motion model.
     weak: usize,
+    /// Lost by following and found by the search in the same frame.
+    recovered: usize,
 }
 
 impl Tally {
@@ -173,6 +175,9 @@ impl Tally {
             self.fused += 1;
             if r.track.is_some_and(|t| t.weak_directions > 0) {
                 self.weak += 1;
+            }
+            if r.track.is_some_and(|t| t.recovered) {
+                self.recovered += 1;
             }
         }
     }
@@ -431,7 +436,9 @@ impl Session {
 
     /// The run's summary keys that do not depend on the front end:
     /// `frames_fused` and `fused_fraction`; `tracking`, and when tracking
-    /// `lost` (times lost), `lost_frames`, `weak_frames` (frames fused with
+    /// `lost` (times lost), `lost_frames`, `recovered_frames` (frames
+    /// following lost and the search found in the same frame, fused),
+    /// `weak_frames` (frames fused with
     /// a direction left to the motion model: the view did not pin it down,
     /// so the map there is only as good as the motion's prediction) and
     /// `track_ms` (mean per tracked frame); the back-end's own keys (see
@@ -451,6 +458,7 @@ impl Session {
         if self.poses.tracking() {
             summary.insert("lost".into(), json!(self.poses.lost));
             summary.insert("lost_frames".into(), json!(self.poses.lost_frames));
+            summary.insert("recovered_frames".into(), json!(self.tally.recovered));
             summary.insert("weak_frames".into(), json!(self.weak_frames()));
             summary.insert(
                 "track_ms".into(),

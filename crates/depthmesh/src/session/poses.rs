@@ -28,6 +28,9 @@ pub struct TrackRecord {
     pub weak_axes: u8,
     /// The frame was found again after a loss.
     pub relocalised: bool,
+    /// Following lost the frame and the search for the lost camera found
+    /// it in the same frame (it is fused, not lost).
+    pub recovered: bool,
     /// Why the frame was lost (and not fused), if it was.
     pub lost: Option<LostReason>,
 }
@@ -42,6 +45,9 @@ pub enum TrackEvent {
         /// Frames lost before this one.
         after: usize,
     },
+    /// A frame following lost, for this reason, and the search for the
+    /// lost camera found in the same frame: it is fused, not lost.
+    FoundAgain(LostReason),
 }
 
 /// The pose decided for one frame.
@@ -175,6 +181,7 @@ impl PoseSource {
         let event = match (t.lost, self.streak) {
             (Some(reason), 0) => Some(TrackEvent::Lost(reason)),
             (None, n) if n > 0 => Some(TrackEvent::Recovered { after: n }),
+            (None, _) => t.recovered_from.map(TrackEvent::FoundAgain),
             _ => None,
         };
         if t.lost.is_some() {
@@ -196,6 +203,7 @@ impl PoseSource {
                 weak_directions: t.weak_directions,
                 weak_axes: t.weak_axes,
                 relocalised: t.relocalised,
+                recovered: t.recovered_from.is_some(),
                 lost: t.lost,
             }),
             event,

@@ -45,6 +45,7 @@ fn track_json(t: &TrackRecord) -> Value {
         "weak_directions": t.weak_directions,
         "weak_axes": t.weak_axes,
         "relocalised": t.relocalised,
+        "recovered": t.recovered,
         "lost": lost,
     })
 }
@@ -80,6 +81,9 @@ fn track_from(v: &Value) -> Result<TrackRecord, String> {
         weak_directions: small("weak_directions")?,
         weak_axes: small("weak_axes")?,
         relocalised: v["relocalised"].as_bool().ok_or("track: no relocalised")?,
+        // Absent from records saved before the search started in the frame
+        // following lost: none was found there.
+        recovered: v["recovered"].as_bool().unwrap_or(false),
         lost,
     })
 }
@@ -200,6 +204,7 @@ mod tests {
                 weak_directions: 1,
                 weak_axes: 4,
                 relocalised: true,
+                recovered: false,
                 lost: Some(LostReason::Jump(0.41)),
             }),
             ..r

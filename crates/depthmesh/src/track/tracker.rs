@@ -128,9 +128,10 @@ const GLOBAL_CANDIDATES: usize = 3;
 /// 76° were found within 0.9 cm.
 const TURN_STEP_DEGREES: f32 = 10.0;
 
-/// Frames after a loss that the camera is looked for turned on the spot
-/// (see [`TURN_STEP_DEGREES`]): each look costs tens of model views, and a
-/// camera lost longer may be anywhere.
+/// Frames after the one where the camera was lost that it is still looked
+/// for turned on the spot, as in that one (see [`TURN_STEP_DEGREES`]): each
+/// look costs tens of model views, and a camera lost longer may be
+/// anywhere.
 const TURN_FRAMES: usize = 2;
 
 /// Turns of the search on the spot (see [`TURN_STEP_DEGREES`]) refined and
@@ -470,6 +471,9 @@ pub struct Tracked {
     pub weak_axes: u8,
     /// The pose was found from a keyframe after the camera was lost.
     pub relocalised: bool,
+    /// Why following lost this frame, when the search for the lost camera
+    /// then found it (see [`Tracker::track`]): it is not lost.
+    pub recovered_from: Option<LostReason>,
 }
 
 impl Tracked {
@@ -486,6 +490,7 @@ impl Tracked {
             weak_directions: 0,
             weak_axes: 0,
             relocalised: false,
+            recovered_from: None,
         }
     }
 }
@@ -693,31 +698,77 @@ impl Tracker {
     }
 
     /// Aligns `depth` with what `map` predicts from the last good pose;
-    /// when the camera is lost, searches for it near its last pose, then
-    /// turned on the spot there, then by global registration against the
-    /// map and from the keyframes most like the frame.
+    /// when that loses the camera, or it was lost before, searches for it
+    /// near its last pose, then turned on the spot there, then by global
+    /// registration against the map and from the keyframes most like the
+    /// frame.
+    ///
+    /// The search starts at the frame following loses, not at the next
+    /// one: the camera that jumped is found where it landed, and that
+    /// frame is fused instead of thrown away (every gap of the kitchen in
+    /// the README lost exactly that frame, and tracking every 20th frame
+    /// of the kitchen lost two such frames).
+    ///
+    /// The frame after the search found the camera is searched for too,
+    /// from the motion guessed across the loss and from no motion, and
+    /// held to the search's verification: with no measured motion nothing
+    /// checks a pose followed there, and along what the view pins only at
+    /// its edges ICP settles where it starts (a corridor of bays alike, the
+    /// camera turned about in one frame and walking back 10 cm a frame:
+    /// followed, the frame after the turn was accepted 10 and 19 cm off).
+    /// Found from either start, its motion from the found frame is
+    /// measured, and the camera is followed again.
     pub fn track(&mut self, depth: &DepthImage, map: &dyn Mapper) -> Tracked {
         self.prepare(depth);
-        let result = if self.lost_streak == 0 {
-            self.follow(map)
-        } else {
-            let mut result = self.recover_near(map);
-            if result.lost.is_some() && self.lost_streak <= TURN_FRAMES {
-                // The model pyramid still holds the view from the last good
-                // pose that `recover_near` built.
-                let up = vertical(&self.model.levels[0].normals);
-                let before = result.iterations;
-                result = self.recover_turned(up, map);
-                result.iterations += before;
-            }
-            if result.lost.is_some() {
-                let before = result.iterations;
-                result = self.relocalise_prepared(map);
-                result.iterations += before;
-            }
-            result
+        if self.lost_streak > 0 {
+            let found = self.search(map);
+            return self.conclude(found, true);
+        }
+        if !self.velocity_known && !self.keyframes.is_empty() {
+            let found = self.search(map);
+            let jumped = found.relocalised;
+            return self.conclude(found, jumped);
+        }
+        let followed = self.follow(map);
+        let Some(reason) = followed.lost else {
+            return self.conclude(followed, false);
         };
-        self.conclude(result)
+        let found = self.search(map);
+        let iterations = followed.iterations + found.iterations;
+        // A frame still lost reads as following lost it: why the search
+        // failed too says less than why the camera was lost.
+        let result = match found.lost {
+            None => Tracked {
+                iterations,
+                recovered_from: Some(reason),
+                ..found
+            },
+            Some(_) => Tracked {
+                iterations,
+                ..followed
+            },
+        };
+        self.conclude(result, true)
+    }
+
+    /// The search for a lost camera ([`Tracker::track`]), in the frame
+    /// `lost_streak + 1` frames from the last good pose.
+    fn search(&mut self, map: &dyn Mapper) -> Tracked {
+        let mut result = self.recover_near(map);
+        if result.lost.is_some() && self.lost_streak <= TURN_FRAMES {
+            // The model pyramid still holds the view from the last good
+            // pose that `recover_near` built.
+            let up = vertical(&self.model.levels[0].normals);
+            let before = result.iterations;
+            result = self.recover_turned(up, map);
+            result.iterations += before;
+        }
+        if result.lost.is_some() {
+            let before = result.iterations;
+            result = self.relocalise_prepared(map);
+            result.iterations += before;
+        }
+        result
     }
 
     /// The camera model [`Tracker::track_against`] expects the model view in.
@@ -730,12 +781,15 @@ impl Tracker {
     /// relocalisation: there is no map to ask).
     pub fn track_against(&mut self, depth: &DepthImage, model: &DepthImage) -> Tracked {
         self.prepare(depth);
-        let result = if self.model_view(model, self.model_intrinsics) {
+        let searching = self.lost_streak > 0;
+        let result = if !self.model_view(model, self.model_intrinsics) {
+            Tracked::empty(self.last_good)
+        } else if searching {
             self.search_near()
         } else {
-            Tracked::empty(self.last_good)
+            self.icp(self.last_good, self.velocity, Search::Follow)
         };
-        self.conclude(result)
+        self.conclude(result, searching)
     }
 
     /// Learns `depth`, seen from `pose` (known, e.g. from the data), as a
@@ -790,21 +844,18 @@ impl Tracker {
     /// frame-resolution view alone (the coarse one only if that cannot
     /// align them) until one is well conditioned there.
     ///
-    /// Without a measured motion (the first frame, and the first after the
-    /// camera was found again), against the view at the frame's own
-    /// resolution alone; before the first keyframe, also weighed against
-    /// the poses global registration proposes ([`Tracker::start_globally`]);
-    /// after a loss, from the step across it and from no motion
-    /// ([`Tracker::start_still`]).
+    /// Without a measured motion (the first frame), against the view at
+    /// the frame's own resolution alone, and weighed against the poses
+    /// global registration proposes ([`Tracker::start_globally`]).
     fn follow(&mut self, map: &dyn Mapper) -> Tracked {
         let mut result = self.follow_from(map, self.velocity);
-        // Only before the first keyframe (the start): after the camera is
-        // found again, its pose was verified against the map a frame ago,
-        // and weighing global registration's poses means describing the map
-        // from every keyframe anew (0.55 s of that frame's 0.78 s on the
-        // corridor walked there and back; without it, those walks and the
-        // kitchen's seven gaps of the README gave the same poses' errors
-        // to the last digit).
+        // Only before the first keyframe (the start): the frame after the
+        // camera was found again is searched for, not followed (see
+        // [`Tracker::track`]), and weighing global registration's poses
+        // there meant describing the map from every keyframe anew (0.55 s
+        // of that frame's 0.78 s on the corridor walked there and back;
+        // without it, those walks and the kitchen's seven gaps of the
+        // README gave the same poses' errors to the last digit).
         //
         // A start ICP aligned with its view well conditioned is kept
         // without asking global registration (60–70 ms of a kitchen run's
@@ -812,12 +863,8 @@ impl Tracker {
         // seeds 0–11; sixteen random scenes, seeds 0–1) its poses were
         // never taken, and the kitchen's trajectories stay the same without
         // them; a start that is lost or weak still gets them.
-        if !self.velocity_known && self.keyframes.is_empty() {
-            if !self.aligned_well(&result) {
-                result = self.start_globally(map, result);
-            }
-        } else if !self.velocity_known && self.velocity != Pose::IDENTITY {
-            result = self.start_still(map, result);
+        if !self.velocity_known && self.keyframes.is_empty() && !self.aligned_well(&result) {
+            result = self.start_globally(map, result);
         }
         result
     }
@@ -884,23 +931,6 @@ impl Tracker {
         self.fine_first = self.velocity_known && fine_weak && !coarse_good;
         result.iterations = iterations;
         result
-    }
-
-    /// The frame after the camera was found again starts from the mean
-    /// step across the loss ([`Tracker::motion_across_loss`]): a camera that walks
-    /// on while it is lost walks on after it, and from no motion, along
-    /// what the view pins only at its edges (a corridor of bays alike, the
-    /// camera walking 10 cm a frame), ICP stayed where the last frame was
-    /// and every frame after it followed (9 and 30 cm off). But the loss
-    /// may have been a stop, or the mean a poor guess, so `moving` is
-    /// weighed against the frame aligned from no motion, as
-    /// [`Tracker::start_globally`] weighs its poses. Even a well
-    /// conditioned `moving` is weighed: skipping it then (tried) left the
-    /// kitchen's gap of frames 200–279 with a second lost frame and its
-    /// ATE at 6.86 cm instead of 5.25, for 0.2 s saved on that one frame.
-    fn start_still(&mut self, map: &dyn Mapper, moving: Tracked) -> Tracked {
-        let still = self.follow_from(map, Pose::IDENTITY);
-        self.better_of(map, moving, still)
     }
 
     /// `near`, unless `other` is aligned and `near` is lost, or `other`
@@ -1018,13 +1048,10 @@ impl Tracker {
         result
     }
 
-    /// ICP against the model view from the last good pose (built): from
-    /// the motion model when tracking; after a loss, first where the last
-    /// motion would have taken the camera, then at the last good pose.
+    /// ICP against the model view from the last good pose (built) after a
+    /// loss: first where the last motion would have taken the camera, then
+    /// at the last good pose.
     fn search_near(&self) -> Tracked {
-        if self.lost_streak == 0 {
-            return self.icp(self.last_good, self.velocity, Search::Follow);
-        }
         let frames = (self.lost_streak + 1).min(MAX_EXTRAPOLATED);
         let extrapolated = (0..frames).fold(Pose::IDENTITY, |m, _| m.compose(&self.velocity));
         let moving = self.icp(self.last_good, extrapolated, Search::Recover);
@@ -1396,6 +1423,7 @@ impl Tracker {
             weak_directions: weak.count,
             weak_axes: weak.axes,
             relocalised: false,
+            recovered_from: None,
         };
         (tracked, agree)
     }
@@ -1446,7 +1474,13 @@ impl Tracker {
     /// a loss says nothing of the turn to come (the corridor's camera
     /// turned about while it was lost, then walked straight on), and a
     /// camera found after a jump did not move at a constant velocity.
+    ///
+    /// A camera found in the frame following lost walks on as it walked
+    /// before, in its own axes, turned no further.
     fn motion_across_loss(&self, found: &Tracked) -> Pose {
+        if self.lost_streak == 0 {
+            return Pose::new(glam::Mat3::IDENTITY, self.velocity.translation);
+        }
         let frames = (self.lost_streak + 1) as f32;
         let step = (found.pose.translation - self.last_good.translation) / frames;
         if step.length() <= self.config.max_jump {
@@ -1458,15 +1492,16 @@ impl Tracker {
 
     /// Moves the tracker on by an alignment: to the frame's pose when it
     /// was aligned (learning it as a keyframe when it was tracked well),
-    /// nowhere when it was lost.
-    fn conclude(&mut self, result: Tracked) -> Tracked {
+    /// nowhere when it was lost. `searched`: the result is the search for
+    /// a lost camera's, not following's.
+    fn conclude(&mut self, result: Tracked, searched: bool) -> Tracked {
         let pose = match result.lost {
             None => {
                 self.last_conditioning = result.conditioning;
-                // After a loss the motion spans several frames: no
-                // velocity is measured, and the next frame's start is
-                // guessed below.
-                if self.lost_streak == 0 {
+                // A camera found by the search did not move at a constant
+                // velocity: none is measured, and the next frame's start
+                // is guessed below.
+                if !searched {
                     self.velocity = self.last_good.inverse().compose(&result.pose);
                     self.velocity_known = true;
                     // Any frame trusted enough to be fused is a viewpoint
@@ -1479,8 +1514,9 @@ impl Tracker {
                             .learn(&self.frame.levels[LEVELS - 1].depth, &result.pose);
                     }
                 }
-                if self.lost_streak > 0 {
+                if searched {
                     self.velocity = self.motion_across_loss(&result);
+                    self.velocity_known = false;
                 }
                 self.last_good = result.pose;
                 self.lost_streak = 0;
@@ -2189,16 +2225,24 @@ translation = [5.7, 0.6, 1.2]
     // against the scene itself, the turn was accepted 7 cm and 69° off.
     // Where the map has seen surface the frame sees something else (there
     // 44 % of those points matched, 92 % or more on every frame tracked
-    // well): such a pose is lost, never fused.
+    // well): following loses such a pose, never fuses it, and the search
+    // for the lost camera finds it where it is, or leaves it lost.
     #[test]
     fn a_camera_that_turns_about_in_one_frame_is_never_followed_to_a_wrong_pose() {
         let (turned, at, back) = turn_about(CORRIDOR, 0.7);
+        let (dt, dr) = error(&turned.pose, &at);
         assert!(
-            matches!(turned.lost, Some(LostReason::Contradicted(_))),
-            "{:?} at {:?} of the truth",
+            matches!(
+                (turned.lost, turned.recovered_from),
+                (Some(LostReason::Contradicted(_)), _) | (None, Some(LostReason::Contradicted(_)))
+            ),
+            "{:?} {:?} at {dt} m, {dr}° of the truth",
             turned.lost,
-            error(&turned.pose, &at)
+            turned.recovered_from
         );
+        if turned.lost.is_none() {
+            assert!(dt < 0.02 && dr < 1.0, "the turn found at {dt} m, {dr}°");
+        }
         for (i, (t, pose)) in back.iter().enumerate() {
             if t.lost.is_none() {
                 let (dt, dr) = error(&t.pose, pose);
@@ -2211,13 +2255,17 @@ translation = [5.7, 0.6, 1.2]
     // wherever the map looks alike: on that 20 m walk, in a bay 6 m off;
     // here, where both bays look the same, it stayed lost for six frames
     // and was then accepted 20 cm off along the corridor. The turn (74°)
-    // lies between the multiples of [`TURN_STEP_DEGREES`]: the frame after
-    // it is found turned on the spot, where it is.
+    // lies between the multiples of [`TURN_STEP_DEGREES`]: the frame
+    // following loses is found turned on the spot, where it is, and so is
+    // every frame after it.
     #[test]
     fn a_camera_that_turns_about_is_found_turned_not_in_a_place_alike() {
         let alike = CORRIDOR.replace("rotation = [0.0, 17.0, 0.0]\n", "");
-        let (turned, _, back) = turn_about(&alike, 0.8);
-        assert!(turned.lost.is_some());
+        let (turned, at, back) = turn_about(&alike, 0.8);
+        assert_eq!(turned.lost, None);
+        assert!(turned.recovered_from.is_some());
+        let (dt, dr) = error(&turned.pose, &at);
+        assert!(dt < 0.02 && dr < 1.0, "the turn: {dt} m, {dr}°");
         for (i, (t, pose)) in back.iter().enumerate() {
             assert_eq!(t.lost, None, "frame {i} back");
             let (dt, dr) = error(&t.pose, pose);
