@@ -848,7 +848,7 @@ impl Tracker {
     /// the frame's own resolution alone, and weighed against the poses
     /// global registration proposes ([`Tracker::start_globally`]).
     fn follow(&mut self, map: &dyn Mapper) -> Tracked {
-        let mut result = self.follow_from(map, self.velocity);
+        let mut result = self.follow_views(map);
         // Only before the first keyframe (the start): the frame after the
         // camera was found again is searched for, not followed (see
         // [`Tracker::track`]), and weighing global registration's poses
@@ -876,9 +876,9 @@ impl Tracker {
         t.lost.is_none() && t.conditioning >= self.config.refine_conditioning
     }
 
-    /// [`Tracker::follow`]'s alignment from `predicted` (the motion from
-    /// the last good pose), against one view or two.
-    fn follow_from(&mut self, map: &dyn Mapper, predicted: Pose) -> Tracked {
+    /// [`Tracker::follow`]'s alignment from the motion model, against one
+    /// view or two.
+    fn follow_views(&mut self, map: &dyn Mapper) -> Tracked {
         let mut best: Option<Tracked> = None;
         let mut iterations = 0;
         // The first frame may have moved a tenth of the view from the
@@ -905,7 +905,7 @@ impl Tracker {
             if !self.model_view_spaced(&model, k, step) {
                 continue;
             }
-            let t = self.icp(self.last_good, predicted, Search::Follow);
+            let t = self.icp(self.last_good, self.velocity, Search::Follow);
             iterations += t.iterations;
             let better = best.is_none_or(|b| {
                 (t.lost.is_none(), t.conditioning) > (b.lost.is_none(), b.conditioning)
