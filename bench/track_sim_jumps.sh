@@ -1,0 +1,64 @@
+#!/usr/bin/env bash
+# Simulated jumps: each scene's helix of ITERATIONS poses with frames
+# A..B-1 left out, so the camera reappears 0.3-1.5 m from where it was last
+# seen; tracked (`simulate --track --noise kinect --map tsdf`) per noise
+# seed. Prints, per run, the jump, the times tracking was lost, the frames
+# lost, the frames found again in the frame following lost them, and the
+# ATE over every frame (a lost one at its last good pose).
+#
+# Usage: bench/track_sim_jumps.sh [SCENES] [SEEDS] [GAPS]
+#   defaults "table bunnies room plane_and_box sofa_room", "0 1",
+#   "60:65 100:104 140:145" (A:B, frames A..B-1 left out)
+# Needs ../shared beside the repository (or DEPTHMESH_SHARED) for the bunny.
+set -euo pipefail
+cd "$(dirname "$0")/.."
+scenes=${1:-table bunnies room plane_and_box sofa_room}
+seeds=${2:-0 1}
+gaps=${3:-60:65 100:104 140:145}
+iterations=200
+shared=$(realpath -m "${DEPTHMESH_SHARED:-../shared}")
+bunny=$shared/data/stanford-bunny/stanford_bunny.ply
+cargo build --release --quiet
+bin=./target/release/depthmesh
+work=$(mktemp -d)
+trap 'rm -rf "$work"' EXIT
+for scene in $scenes; do
+  file=scenes/$scene.toml
+  extra=()
+  grep -qE '^[^#]*\$\{bunny\}' "$file" && extra=(--bunny "$bunny")
+  # The helix's true poses, written by a tracked run as groundtruth.txt.
+  rm -rf "$work/truth"
+  $bin simulate --quiet --scene "$file" "${extra[@]}" --map tsdf --track \
+    --iterations "$iterations" --out "$work/truth" > /dev/null
+  for gap in $gaps; do
+    a=${gap%:*}
+    b=${gap#*:}
+    jump=$(python3 - "$work/truth/groundtruth.txt" "$a" "$b" "$work/path.txt" <<'PY'
+import math, sys
+rows = [l for l in open(sys.argv[1]) if l.strip() and not l.startswith('#')]
+a, b = int(sys.argv[2]), int(sys.argv[3])
+open(sys.argv[4], 'w').write(''.join(r for i, r in enumerate(rows) if i < a or i >= b))
+pa, pb = ([float(x) for x in rows[i].split()[1:4]] for i in (a - 1, b))
+print(f"{math.dist(pa, pb):.2f}")
+PY
+)
+    poses=$(grep -c . "$work/path.txt")
+    for seed in $seeds; do
+      rm -rf "$work/run"
+      $bin simulate --quiet --scene "$file" "${extra[@]}" --map tsdf --track --noise kinect \
+        --path "tum:$work/path.txt" --iterations "$poses" --seed "$seed" --out "$work/run" > /dev/null 2>&1 || true
+      python3 - "$work/run/summary.json" "$scene" "$a" "$b" "$jump" "$seed" <<'PY'
+import json, sys
+scene, a, b, jump, seed = sys.argv[2:]
+try:
+    s = json.load(open(sys.argv[1]))
+except OSError:
+    print(f"{scene:14s} frames {a}..{int(b) - 1} left out ({jump} m)  seed {seed}: run failed")
+    sys.exit()
+print(f"{scene:14s} frames {a}..{int(b) - 1} left out ({jump} m)  seed {seed}: "
+      f"lost {s['lost']} times, {s['lost_frames']} frames; found in the frame {s['recovered_frames']}; "
+      f"ATE {s['ate_rmse_cm']:.2f} cm")
+PY
+    done
+  done
+done
