@@ -469,7 +469,8 @@ pub struct Tracked {
     /// [`super::degeneracy::AXES`]; [`super::degeneracy::axes_label`]
     /// names them).
     pub weak_axes: u8,
-    /// The pose was found from a keyframe after the camera was lost.
+    /// The pose was found after the camera was lost by the search's turns
+    /// on the spot, global registration or a keyframe.
     pub relocalised: bool,
     /// Why following lost this frame, when the search for the lost camera
     /// then found it (see [`Tracker::track`]): it is not lost.
@@ -708,11 +709,11 @@ impl Tracker {
     /// frame is fused instead of thrown away (every gap of the kitchen in
     /// the README lost exactly that frame, and tracking every 20th frame
     /// of the kitchen lost two such frames).
-    ///
     pub fn track(&mut self, depth: &DepthImage, map: &dyn Mapper) -> Tracked {
         self.prepare(depth);
         if self.lost_streak > 0 {
-            let found = self.search(map);
+            let (near, up) = self.look_near(map);
+            let found = self.search_on(map, near, up);
             return self.conclude(found, true);
         }
         // The frame after the camera was found again is first looked for
@@ -726,20 +727,30 @@ impl Tracker {
         // this way. Held to the search's verification alone, frames of the
         // table scene after a jump were lost over and over for a weak
         // direction that following takes from the motion model.
-        let mut before = 0;
+        let mut looked = None;
         if !self.velocity_known && !self.keyframes.is_empty() {
-            let near = self.recover_near(map);
+            let (near, up) = self.look_near(map);
             if near.lost.is_none() {
                 return self.conclude(near, false);
             }
-            before = near.iterations;
+            looked = Some((near, up));
         }
-        let mut followed = self.follow(map);
-        followed.iterations += before;
+        let followed = self.follow(map);
         let Some(reason) = followed.lost else {
+            let before = looked.map_or(0, |(near, _)| near.iterations);
+            let followed = Tracked {
+                iterations: followed.iterations + before,
+                ..followed
+            };
             return self.conclude(followed, false);
         };
-        let found = self.search(map);
+        // The search goes on from the look near the last pose, if it was
+        // taken: following does not change what it finds.
+        let (near, up) = match looked {
+            Some(looked) => looked,
+            None => self.look_near(map),
+        };
+        let found = self.search_on(map, near, up);
         let iterations = followed.iterations + found.iterations;
         // A frame still lost reads as following lost it: why the search
         // failed too says less than why the camera was lost.
@@ -757,14 +768,23 @@ impl Tracker {
         self.conclude(result, true)
     }
 
-    /// The search for a lost camera ([`Tracker::track`]), in the frame
-    /// `lost_streak + 1` frames from the last good pose.
-    fn search(&mut self, map: &dyn Mapper) -> Tracked {
-        let mut result = self.recover_near(map);
+    /// The first step of the search for a lost camera ([`Tracker::track`]),
+    /// in the frame `lost_streak + 1` frames from the last good pose: the
+    /// frame near its last pose ([`Tracker::recover_near`]), and the
+    /// vertical of the map's view from there, which the search's turns are
+    /// about.
+    fn look_near(&mut self, map: &dyn Mapper) -> (Tracked, glam::Vec3) {
+        let near = self.recover_near(map);
+        // The model pyramid holds the view from the last good pose that
+        // `recover_near` built.
+        (near, vertical(&self.model.levels[0].normals))
+    }
+
+    /// The rest of the search after [`Tracker::look_near`] found `near`:
+    /// turned on the spot about `up`, then relocalised.
+    fn search_on(&mut self, map: &dyn Mapper, near: Tracked, up: glam::Vec3) -> Tracked {
+        let mut result = near;
         if result.lost.is_some() && self.lost_streak <= TURN_FRAMES {
-            // The model pyramid still holds the view from the last good
-            // pose that `recover_near` built.
-            let up = vertical(&self.model.levels[0].normals);
             let before = result.iterations;
             result = self.recover_turned(up, map);
             result.iterations += before;
