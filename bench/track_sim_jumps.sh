@@ -3,8 +3,12 @@
 # A..B-1 left out, so the camera reappears 0.3-1.5 m from where it was last
 # seen; tracked (`simulate --track --noise kinect --map tsdf`) per noise
 # seed. Prints, per run, the jump, the times tracking was lost, the frames
-# lost, the frames found again in the frame following lost them, and the
-# ATE over every frame (a lost one at its last good pose).
+# lost, the frames found again in the frame following lost them, the ATE
+# over every frame (a lost one at its last good pose), and the share of the
+# final map's surface within 2 cm of the scene: what frames fused at a
+# wrong pose did to the map. Per scene and seed it first prints that share
+# for the map fused at the true poses with the same noise, the share a
+# tracked run's map is held to.
 #
 # Usage: bench/track_sim_jumps.sh [SCENES] [SEEDS] [GAPS]
 #   defaults "table bunnies room plane_and_box sofa_room", "0 1",
@@ -30,6 +34,19 @@ for scene in $scenes; do
   rm -rf "$work/truth"
   $bin simulate --quiet --scene "$file" "${extra[@]}" --map tsdf --track \
     --iterations "$iterations" --out "$work/truth" > /dev/null
+  # What the map's surface scores fused at the true poses with the same
+  # noise: the share each tracked run's map is measured against.
+  for seed in $seeds; do
+    rm -rf "$work/fused"
+    $bin simulate --quiet --scene "$file" "${extra[@]}" --map tsdf --noise kinect \
+      --iterations "$iterations" --seed "$seed" --out "$work/fused" > /dev/null
+    python3 - "$work/fused/summary.json" "$scene" "$seed" <<'PY'
+import json, sys
+s = json.load(open(sys.argv[1]))
+print(f"{sys.argv[2]:14s} fused at the true poses, every frame  seed {sys.argv[3]}: "
+      f"map surface within 2 cm of the scene {100 * s['surface_within_2cm']:.1f} %")
+PY
+  done
   for gap in $gaps; do
     a=${gap%:*}
     b=${gap#*:}
@@ -57,7 +74,8 @@ except OSError:
     sys.exit()
 print(f"{scene:14s} frames {a}..{int(b) - 1} left out ({jump} m)  seed {seed}: "
       f"lost {s['lost']} times, {s['lost_frames']} frames; found in the frame {s['recovered_frames']}; "
-      f"ATE {s['ate_rmse_cm']:.2f} cm")
+      f"ATE {s['ate_rmse_cm']:.2f} cm; map surface within 2 cm of the scene "
+      f"{100 * s['surface_within_2cm']:.1f} %")
 PY
     done
   done
