@@ -392,6 +392,8 @@ mod tests {
     use super::*;
     use glam::Vec3;
 
+    // A camera pitched 22° down at a floor, with a wall ahead: the turn
+    // axis is the floor's normal; with only the wall, the image's up.
     #[test]
     fn the_vertical_is_the_floor_normal_when_the_view_has_a_floor() {
         let pitch = 22f32.to_radians();
