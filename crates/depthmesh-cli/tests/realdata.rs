@@ -1,5 +1,6 @@
 //! The real-data check: 7-Scenes kitchen frames 0–99, tracked and fused,
-//! every 15th frame of 0–299 tracked, and every 10th tracked backwards.
+//! every 15th frame of 0–299 tracked, every 10th tracked backwards, and
+//! every 5th of 150–299 relocalised in the map of 0–149.
 //! Ignored by `cargo test`; `.ci/realdata` runs it with `--ignored`, with
 //! `DEPTHMESH_SHARED` pointing at the folder that holds `data/` (and fails
 //! when that folder is missing, rather than passing without it).
@@ -139,6 +140,43 @@ fn the_kitchen_played_backwards_every_tenth_frame_is_tracked_without_loss() {
     let aligned = e["ate_rmse_aligned_cm"].as_f64().unwrap();
     assert!(aligned < 4.5, "ATE after rigid alignment {aligned} cm");
     std::fs::remove_dir_all(reversed).unwrap();
+}
+
+/// Relocalisation with no prior pose, as the README's default split
+/// measures it (`eval relocalise` with the map of frames 0–149 and every
+/// 5th frame of 150–299 as queries, the kitchen's gap bench's): every query
+/// frame the map explains is found, and no pose is accepted off the
+/// references refined against the map. Against the folder's poses 4 of
+/// the 30 are off by 5–8 cm or up to 3°, where the map explains the frame
+/// better at the pose found than at the reference (see the README), so
+/// that count is printed, not held to 0.
+#[test]
+#[ignore = "needs the 7-Scenes frames; run by .ci/realdata"]
+fn kitchen_frames_are_relocalised_with_no_prior_pose() {
+    let data = kitchen();
+    let output = depthmesh(&[
+        "eval",
+        "relocalise",
+        data.to_str().unwrap(),
+        "--map-frames",
+        "0..150",
+        "--query-frames",
+        "150..300",
+        "--stride",
+        "5",
+    ]);
+    ok(&output);
+    let r: Value = serde_json::from_slice(&output.stdout).unwrap();
+    println!("relocalised kitchen frames 150..300 every 5th in the map of 0..150: {r}");
+    assert_eq!(r["queries"], 30, "{r}");
+    // Measured: 8 of 8 explained found, 17 of 17 against the refined
+    // references, none of those wrong; the issue asks 80 % and 0 %.
+    for share in ["found_share", "found_share_refined"] {
+        let found = r[share].as_f64().unwrap();
+        assert!(found >= 0.8, "{share} {found}: {r}");
+    }
+    assert!(r["explained_refined"].as_u64().unwrap() >= 10, "{r}");
+    assert_eq!(r["wrongly_accepted_refined"], 0, "{r}");
 }
 
 /// Probe points for a mesh: points on its surface, the same points moved
