@@ -1,6 +1,7 @@
 //! The real-data check: 7-Scenes kitchen frames 0–99, tracked and fused,
-//! every 15th frame of 0–299 tracked, every 10th tracked backwards, and
-//! every 5th of 150–299 relocalised in the map of 0–149.
+//! every 15th frame of 0–299 tracked, every 10th tracked backwards, the
+//! frames either side of a gap tracked, and every 5th of 150–299
+//! relocalised in the map of 0–149.
 //! Ignored by `cargo test`; `.ci/realdata` runs it with `--ignored`, with
 //! `DEPTHMESH_SHARED` pointing at the folder that holds `data/` (and fails
 //! when that folder is missing, rather than passing without it).
@@ -114,22 +115,10 @@ fn every_fifteenth_kitchen_frame_is_tracked_without_loss() {
 #[test]
 #[ignore = "needs the 7-Scenes frames; run by .ci/realdata"]
 fn the_kitchen_played_backwards_every_tenth_frame_is_tracked_without_loss() {
-    let kitchen = kitchen();
-    let reversed = scratch("real-reversed-frames");
-    std::fs::copy(
-        kitchen.join("camera-intrinsics.txt"),
-        reversed.join("camera-intrinsics.txt"),
-    )
-    .unwrap();
-    for (i, frame) in (0..300).rev().step_by(10).enumerate() {
-        for file in ["depth.png", "color.jpg", "pose.txt"] {
-            std::os::unix::fs::symlink(
-                kitchen.join(format!("frame-{frame:06}.{file}")),
-                reversed.join(format!("frame-{i:06}.{file}")),
-            )
-            .unwrap();
-        }
-    }
+    let reversed = linked_frames(
+        "real-reversed-frames",
+        (0..300).rev().step_by(10).enumerate(),
+    );
     let e = tracked_without_loss(&reversed, "0..30", &[], &[]);
     assert_eq!(e["matched"], 30);
     // Measured 7.79 cm, 3.46 after rigid alignment (Open3D's dense SLAM on
@@ -140,6 +129,51 @@ fn the_kitchen_played_backwards_every_tenth_frame_is_tracked_without_loss() {
     let aligned = e["ate_rmse_aligned_cm"].as_f64().unwrap();
     assert!(aligned < 4.5, "ATE after rigid alignment {aligned} cm");
     std::fs::remove_dir_all(reversed).unwrap();
+}
+
+/// A folder of links to kitchen frames `frames` (their numbers kept), in
+/// a scratch folder named for `name`, with the camera's intrinsics.
+fn linked_frames(name: &str, frames: impl Iterator<Item = (usize, usize)>) -> PathBuf {
+    let kitchen = kitchen();
+    let folder = scratch(name);
+    std::fs::copy(
+        kitchen.join("camera-intrinsics.txt"),
+        folder.join("camera-intrinsics.txt"),
+    )
+    .unwrap();
+    for (number, frame) in frames {
+        for file in ["depth.png", "color.jpg", "pose.txt"] {
+            std::os::unix::fs::symlink(
+                kitchen.join(format!("frame-{frame:06}.{file}")),
+                folder.join(format!("frame-{number:06}.{file}")),
+            )
+            .unwrap();
+        }
+    }
+    folder
+}
+
+/// The kitchen's default gap (`bench/track_gap.sh`): frames 150–219 left
+/// out, so the camera reappears 0.35 m and 41° from where it was last
+/// seen. Following loses frame 220 and the search finds the camera in that
+/// frame, so no frame is lost.
+#[test]
+#[ignore = "needs the 7-Scenes frames; run by .ci/realdata"]
+fn a_kitchen_camera_that_jumps_is_found_where_it_reappears() {
+    let gap = linked_frames(
+        "real-gap-frames",
+        (0..300).filter(|i| !(150..220).contains(i)).map(|i| (i, i)),
+    );
+    let e = tracked_without_loss(&gap, "0..300", &[], &[]);
+    assert_eq!(e["matched"], 230);
+    // Measured 3.81 cm, 2.07 after rigid alignment: the 3 cm is met
+    // only after alignment (the README's gap table says why), and these
+    // bounds hold the run to what it does.
+    let ate = e["ate_rmse_cm"].as_f64().unwrap();
+    assert!(ate < 4.5, "ATE {ate} cm");
+    let aligned = e["ate_rmse_aligned_cm"].as_f64().unwrap();
+    assert!(aligned < 2.6, "ATE after rigid alignment {aligned} cm");
+    std::fs::remove_dir_all(gap).unwrap();
 }
 
 /// Relocalisation with no prior pose, as the README's default split
