@@ -4,8 +4,8 @@
 # need_kitchen=1 first), sets up the reference Python (PY), builds depthmesh
 # in release and makes a scratch folder (work) removed on exit; defines
 # frames_folder and link_frame, for folders of links to kitchen frames,
-# and track_both, which tracks frames with depthmesh and Open3D and scores
-# both trajectories.
+# track_both, which tracks frames with depthmesh and Open3D and scores
+# both trajectories, and report_both, which prints one line of that.
 # Run from the repository root.
 shared=$(realpath -m "${DEPTHMESH_SHARED:-../shared}")
 data=$shared/data/7scenes-redkitchen
@@ -51,4 +51,20 @@ track_both() {
   theirs=$("$PY" "$shared/tools/open3d_slam.py" "$1" --start "$2" --end "$3" --voxel "$4" \
     --block-resolution 8 --trunc-voxels 4 --trajectory "$out/open3d.txt" | tail -1)
   theirs_ate=$("$PY" "$shared/tools/trajectory_error.py" "$out/open3d.txt" --frames-folder "$1" | tail -1)
+}
+
+# Prints one line for the last track_both into folder $work/$2, headed $1:
+# the frames, each tool's lost frames, ATE (after rigid alignment, and the
+# largest error) and frames/s, and the ratio of the speeds.
+report_both() {
+  python3 - "$1" "$work/$2/ours/summary.json" "$ours_ate" "$theirs" "$theirs_ate" <<'PY'
+import json, sys
+ours = json.load(open(sys.argv[2])); ate = json.loads(sys.argv[3])
+theirs = json.loads(sys.argv[4]); theirs_ate = json.loads(sys.argv[5])
+print(f"{sys.argv[1]}{ours['frames']} frames | depthmesh lost {ours['lost_frames']}, "
+      f"ATE {ate['ate_rmse_cm']:.2f} cm (aligned {ate['ate_rmse_aligned_cm']:.2f}, max {ate['max_cm']:.2f}), "
+      f"{ours['fps']:.1f} frames/s | Open3D lost {theirs['lost']}, ATE {theirs_ate['ate_rmse_cm']:.2f} cm "
+      f"(aligned {theirs_ate['ate_rmse_aligned_cm']:.2f}, max {theirs_ate['max_cm']:.2f}), "
+      f"{theirs['fps']:.1f} frames/s | ratio {ours['fps'] / theirs['fps']:.2f}x")
+PY
 }

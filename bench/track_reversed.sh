@@ -39,13 +39,4 @@ for ((frame = end - 1; frame >= start; frame -= stride)); do
 done
 echo "kitchen frames $((end - 1)) down to $start, every ${stride}, first pose given, ${voxel} m voxels"
 track_both "$folder" 0 "$count" "$voxel" run
-python3 - "$work/run/ours/summary.json" "$ours_ate" "$theirs" "$theirs_ate" <<'PY'
-import json, sys
-ours = json.load(open(sys.argv[1])); ate = json.loads(sys.argv[2])
-theirs = json.loads(sys.argv[3]); theirs_ate = json.loads(sys.argv[4])
-print(f"{ours['frames']} frames | depthmesh lost {ours['lost_frames']}, "
-      f"ATE {ate['ate_rmse_cm']:.2f} cm (aligned {ate['ate_rmse_aligned_cm']:.2f}, max {ate['max_cm']:.2f}), "
-      f"{ours['fps']:.1f} frames/s | Open3D lost {theirs['lost']}, ATE {theirs_ate['ate_rmse_cm']:.2f} cm "
-      f"(aligned {theirs_ate['ate_rmse_aligned_cm']:.2f}, max {theirs_ate['max_cm']:.2f}), "
-      f"{theirs['fps']:.1f} frames/s | ratio {ours['fps'] / theirs['fps']:.2f}x")
-PY
+report_both "" run

@@ -27,14 +27,5 @@ source bench/setup.sh
 echo "kitchen frames START..$((end - 1)), first pose given, ${voxel} m voxels"
 for start in $starts; do
   track_both "$data" "$start" "$end" "$voxel" "start-$start"
-  python3 - "$start" "$work/start-$start/ours/summary.json" "$ours_ate" "$theirs" "$theirs_ate" <<'PY'
-import json, sys
-ours = json.load(open(sys.argv[2])); ate = json.loads(sys.argv[3])
-theirs = json.loads(sys.argv[4]); theirs_ate = json.loads(sys.argv[5])
-print(f"start {sys.argv[1]:>4}: {ours['frames']} frames | depthmesh lost {ours['lost_frames']}, "
-      f"ATE {ate['ate_rmse_cm']:.2f} cm (aligned {ate['ate_rmse_aligned_cm']:.2f}), {ours['fps']:.1f} frames/s | "
-      f"Open3D lost {theirs['lost']}, ATE {theirs_ate['ate_rmse_cm']:.2f} cm "
-      f"(aligned {theirs_ate['ate_rmse_aligned_cm']:.2f}), {theirs['fps']:.1f} frames/s | "
-      f"ratio {ours['fps'] / theirs['fps']:.2f}x")
-PY
+  report_both "$(printf 'start %4d: ' "$start")" "start-$start"
 done
