@@ -131,8 +131,9 @@ fn the_kitchen_played_backwards_every_tenth_frame_is_tracked_without_loss() {
     std::fs::remove_dir_all(reversed).unwrap();
 }
 
-/// A folder of links to kitchen frames `frames` (their numbers kept), in
-/// a scratch folder named for `name`, with the camera's intrinsics.
+/// A scratch folder named for `name` with the camera's intrinsics and,
+/// for each `(number, frame)` of `frames`, links to kitchen frame `frame`'s
+/// files as frame `number`'s.
 fn linked_frames(name: &str, frames: impl Iterator<Item = (usize, usize)>) -> PathBuf {
     let kitchen = kitchen();
     let folder = scratch(name);
