@@ -285,7 +285,7 @@ impl Tracker {
     /// against the map's described surface, which needs no keyframe near
     /// the camera, then, if no candidate from it is verified, from the
     /// keyframes most like the frame.
-    pub(super) fn relocalise_prepared(&mut self, map: &dyn Mapper) -> Tracked {
+    fn relocalise_prepared(&mut self, map: &dyn Mapper) -> Tracked {
         let global = self.global_candidates(map);
         let mut tried =
             Vec::with_capacity(GLOBAL_CANDIDATES + self.config.relocalisation.candidates);
@@ -338,7 +338,7 @@ impl Tracker {
         first: bool,
         map: &dyn Mapper,
     ) -> Tracked {
-        let mut best: Option<(f64, Tracked)> = None;
+        let mut verified: Vec<Tracked> = Vec::new();
         let mut first_failure = Tracked::empty(self.last_good);
         let mut iterations = 0;
         for &pose in candidates {
@@ -357,23 +357,32 @@ impl Tracker {
             let t = self.icp(pose, Pose::IDENTITY, Search::Relocalise);
             iterations += t.iterations;
             match t.lost {
-                // Taken as it is: no score is weighed.
-                None if first => {
-                    best = Some((0.0, t));
-                    break;
-                }
                 None => {
-                    let score = self.confirmed(map, &t.pose);
-                    if best.as_ref().is_none_or(|(s, _)| score > *s) {
-                        best = Some((score, t));
+                    verified.push(t);
+                    if first {
+                        break;
                     }
                 }
                 Some(_) if first_failure.iterations == 0 => first_failure = t,
                 Some(_) => {}
             }
         }
+        // Scoring renders the map's view from each pose found: only worth
+        // it when there is a choice.
+        let best = if verified.len() > 1 {
+            let mut best: Option<(f64, Tracked)> = None;
+            for t in verified {
+                let score = self.confirmed(map, &t.pose);
+                if best.as_ref().is_none_or(|(s, _)| score > *s) {
+                    best = Some((score, t));
+                }
+            }
+            best.map(|(_, t)| t)
+        } else {
+            verified.pop()
+        };
         let mut result = match best {
-            Some((_, t)) => Tracked {
+            Some(t) => Tracked {
                 relocalised: true,
                 ..t
             },
