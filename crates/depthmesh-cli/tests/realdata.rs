@@ -108,6 +108,15 @@ fn every_fifteenth_kitchen_frame_is_tracked_without_loss() {
     assert!(ate < 6.0, "ATE {ate} cm");
 }
 
+/// The trajectory error `e` (of `eval trajectory`) is below `rmse` cm,
+/// and below `aligned` cm after rigid alignment.
+fn assert_ate_below(e: &Value, rmse: f64, aligned: f64) {
+    let ate = e["ate_rmse_cm"].as_f64().unwrap();
+    assert!(ate < rmse, "ATE {ate} cm");
+    let after = e["ate_rmse_aligned_cm"].as_f64().unwrap();
+    assert!(after < aligned, "ATE after rigid alignment {after} cm");
+}
+
 /// The kitchen played backwards, every 10th frame (frames 299, 289, …, 9,
 /// a third of a second apart, renumbered from 0 in a folder of links, as
 /// `bench/track_reversed.sh 0 300 10` plays them): a path none of the
@@ -124,10 +133,7 @@ fn the_kitchen_played_backwards_every_tenth_frame_is_tracked_without_loss() {
     // Measured 7.79 cm, 3.46 after rigid alignment (Open3D's dense SLAM on
     // the same frames: 160.83 and 74.93); the folder's pose of frame 299,
     // where the run starts, lies 5–7 cm from every tracker's trajectory.
-    let ate = e["ate_rmse_cm"].as_f64().unwrap();
-    assert!(ate < 9.5, "ATE {ate} cm");
-    let aligned = e["ate_rmse_aligned_cm"].as_f64().unwrap();
-    assert!(aligned < 4.5, "ATE after rigid alignment {aligned} cm");
+    assert_ate_below(&e, 9.5, 4.5);
     std::fs::remove_dir_all(reversed).unwrap();
 }
 
@@ -170,10 +176,7 @@ fn a_kitchen_camera_that_jumps_is_found_where_it_reappears() {
     // Measured 3.81 cm, 2.07 after rigid alignment: the 3 cm is met
     // only after alignment (the README's gap table says why), and these
     // bounds hold the run to what it does.
-    let ate = e["ate_rmse_cm"].as_f64().unwrap();
-    assert!(ate < 4.5, "ATE {ate} cm");
-    let aligned = e["ate_rmse_aligned_cm"].as_f64().unwrap();
-    assert!(aligned < 2.6, "ATE after rigid alignment {aligned} cm");
+    assert_ate_below(&e, 4.5, 2.6);
     std::fs::remove_dir_all(gap).unwrap();
 }
 
