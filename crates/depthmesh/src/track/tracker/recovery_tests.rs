@@ -8,22 +8,7 @@ use glam::Vec3;
 
 const TABLE: &str = include_str!("../../../../../scenes/table.toml");
 /// One floor and one small box: everything horizontal rests on the box.
-const PLANE_AND_BOX: &str = r#"
-[helix]
-height = [0.8, 1.2]
-look_at = [[0.0, 0.2, 0.0], [0.0, 0.3, 0.0]]
-margin = 3.0
-turns = 2.0
-[[object]]
-shape = "box"
-size = [10.0, 0.1, 10.0]
-translation = [0.0, 0.05, 0.0]
-floor = true
-[[object]]
-shape = "box"
-size = [0.3, 0.25, 0.2]
-translation = [0.2, 0.225, -0.1]
-"#;
+const PLANE_AND_BOX: &str = include_str!("../../../../../scenes/plane_and_box.toml");
 
 /// Tracks the first `count` poses of the scene's 200-pose helix (the
 /// judged runs' speed: 10–16 cm a frame) with Kinect noise; the worst
