@@ -116,7 +116,13 @@ const SINGULAR: f64 = 0.01;
 /// 0.2 cm off; twelve did no better and cost three times as long. Only the
 /// frame's own ICP searches it, not relocalisation's from candidate poses:
 /// there it left the kitchen's poses found at the map's edge up to 2.9 cm
-/// from the references refined against the map, instead of 0.7 cm.
+/// from the references refined against the map, instead of 0.7 cm. Nor
+/// does the finest level search it: the coarser levels, searching the same
+/// four frame pixels, have brought the frame in, and at full resolution
+/// most of what fails at its own pixel fails on the noise of one-pixel
+/// normals (a kitchen start: 114 000 of 160 000 points), so the search
+/// drew the neighbour whose noise happened to agree, at 40–50 ms an
+/// iteration against 5 without it (the first frame 108 ms instead of 215).
 const START_WINDOW: usize = 4;
 
 /// Frame pixels along each side of the block that counts as one
@@ -127,6 +133,61 @@ const INFORMATION_BLOCK: usize = 4;
 
 /// ICP iterations per level, at most: more is a mistake, not a setting.
 const MAX_ITERATIONS: usize = 100;
+
+/// The updates a level's iterations are watched over for going round in a
+/// cycle (see [`Cycle`]): associations that flip between two or four sets
+/// as the pose steps between them (a period of 2 or 4 comes back to the
+/// pose it left within this many; a period of 3 to one step from it).
+const CYCLE: usize = 4;
+
+/// The last [`CYCLE`] poses of a level's iterations and the updates that
+/// led to them: whether the iterations go round in a cycle instead of
+/// settling. Near a minimum where a few points cross the association's
+/// bars, the pose can step back and forth between the sets they make, each
+/// update as large as the one before: a kitchen frame followed after a turn
+/// stepped 1.5 mm back and forth for the thirty extra iterations a level is
+/// allowed (34 iterations in all; the schedule's pose stood), and a
+/// kitchen start's coarsest level stepped 0.2 mm round a cycle of four for
+/// 54 of its 60 iterations. A level that moves the frame on (a slow pull along what the view barely
+/// pins) leaves it about as far from where it was as its updates add up to,
+/// and is not a cycle.
+#[derive(Clone, Copy)]
+struct Cycle {
+    poses: [Pose; CYCLE],
+    steps: [f64; CYCLE],
+    recorded: usize,
+}
+
+impl Cycle {
+    /// Watches the iterations of a level that starts at `pose`.
+    fn starting_at(pose: Pose) -> Self {
+        Cycle {
+            poses: [pose; CYCLE],
+            steps: [0.0; CYCLE],
+            recorded: 1,
+        }
+    }
+
+    /// Records `pose`, reached by an update that moved points `step`
+    /// (metres), and returns whether the last [`CYCLE`] updates brought the
+    /// frame back within `settled` of where they started, travelling at
+    /// least twice as far as that on the way: a cycle, not convergence.
+    /// `range` turns rotations into motion of the points, as `step` does.
+    fn closes(&mut self, pose: Pose, step: f64, range: f64, settled: f64) -> bool {
+        let slot = self.recorded % CYCLE;
+        let start = self.poses[slot];
+        self.poses[slot] = pose;
+        self.steps[slot] = step;
+        self.recorded += 1;
+        if self.recorded <= CYCLE {
+            return false;
+        }
+        let moved = pose.compose(&start.inverse());
+        let net = f64::from(moved.translation.length()) + f64::from(moved.rotation_angle()) * range;
+        let travelled: f64 = self.steps.iter().sum();
+        net < settled && 2.0 * net < travelled
+    }
+}
 
 /// Tracking parameters; the defaults are KinectFusion's where it has one,
 /// except the iterations: Open3D's (6, 3, 1) track 7-Scenes as accurately
@@ -957,7 +1018,7 @@ impl Tracker {
             };
             let model = &self.model.levels[level.saturating_sub(model_step)];
             let assoc = Association {
-                window: if self.velocity_known || recovering {
+                window: if self.velocity_known || recovering || level == 0 {
                     0
                 } else {
                     (START_WINDOW * model.size().0 + frame_width / 2) / frame_width
@@ -980,6 +1041,7 @@ impl Tracker {
             let mut scheduled: Option<(Pose, Equations, f64)> = None;
             let mut settled_past_schedule = false;
             let frame = &self.frame.levels[(level + coarser).min(LEVELS - 1)];
+            let mut cycle = Cycle::starting_at(relative);
             for run in 1..=most {
                 eq = equations(frame, model, &relative, &assoc);
                 iterations += 1;
@@ -997,6 +1059,14 @@ impl Tracker {
                 }
                 if step < self.config.convergence || run >= enough && step < self.config.settled {
                     settled_past_schedule = run > runs;
+                    break;
+                }
+                // Past the level's scheduled count (not its allowance), a
+                // cycle is left where it is: it has not settled, so
+                // iterations past the schedule are judged as if they had
+                // run out.
+                let cycled = cycle.closes(relative, step, eq.rms_range(), self.config.settled);
+                if cycled && run >= count {
                     break;
                 }
             }
