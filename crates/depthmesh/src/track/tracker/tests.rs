@@ -523,3 +523,40 @@ fn rejects_bad_settings() {
     }
     assert!(Tracker::new(d(), k, Pose::IDENTITY).is_ok());
 }
+
+/// Feeds `Cycle` the poses `offsets` (metres along x from a start at the
+/// origin, each reached by the update from the one before) and returns
+/// what it said after each.
+fn cycle_verdicts(offsets: &[f32]) -> Vec<bool> {
+    let at = |x: f32| Pose::new(glam::Mat3::IDENTITY, Vec3::new(x, 0.0, 0.0));
+    let mut cycle = Cycle::starting_at(at(0.0));
+    let mut last = 0.0;
+    offsets
+        .iter()
+        .map(|&x| {
+            let step = f64::from((x - last).abs());
+            last = x;
+            cycle.closes(at(x), step, 2.0, TrackerConfig::default().settled)
+        })
+        .collect()
+}
+
+#[test]
+fn iterations_stepping_back_and_forth_are_a_cycle() {
+    // 1.5 mm back and forth, as a followed kitchen frame did.
+    let verdicts = cycle_verdicts(&[0.0015, 0.0, 0.0015, 0.0, 0.0015, 0.0]);
+    assert_eq!(verdicts, [false, false, false, true, true, true]);
+    // Round four poses 0.2 mm apart, as a kitchen start's coarsest level.
+    let square = cycle_verdicts(&[0.0002, 0.0004, 0.0002, 0.0, 0.0002]);
+    assert_eq!(square, [false, false, false, true, true]);
+}
+
+#[test]
+fn iterations_that_move_the_frame_on_or_settle_are_not_a_cycle() {
+    // A slow pull, 0.2 mm an update the same way: 0.8 mm over four.
+    let pull: Vec<f32> = (1..=12).map(|i| 0.0002 * i as f32).collect();
+    assert!(cycle_verdicts(&pull).iter().all(|&c| !c));
+    // Updates that halve: the frame settles, and `settled` says so.
+    let settling: Vec<f32> = (1..=8).map(|i| 0.0002 * (1.0 - 0.5f32.powi(i))).collect();
+    assert!(cycle_verdicts(&settling).iter().all(|&c| !c));
+}
