@@ -556,6 +556,11 @@ fn iterations_that_move_the_frame_on_or_settle_are_not_a_cycle() {
     // A slow pull, 0.2 mm an update the same way: 0.8 mm over four.
     let pull: Vec<f32> = (1..=12).map(|i| 0.0002 * i as f32).collect();
     assert!(cycle_verdicts(&pull).iter().all(|&c| !c));
+    // Back and forth, but 0.5 mm further on each time: a pull too.
+    let zigzag: Vec<f32> = (1..=12)
+        .map(|i| 0.00025 * i as f32 + if i % 2 == 1 { 0.0015 } else { 0.0 })
+        .collect();
+    assert!(cycle_verdicts(&zigzag).iter().all(|&c| !c));
     // Updates that halve: the frame settles, and `settled` says so.
     let settling: Vec<f32> = (1..=8).map(|i| 0.0002 * (1.0 - 0.5f32.powi(i))).collect();
     assert!(cycle_verdicts(&settling).iter().all(|&c| !c));
