@@ -148,10 +148,9 @@ const CYCLE: usize = 4;
 /// stepped 1.5 mm back and forth for the thirty extra iterations a level is
 /// allowed (34 iterations in all; the schedule's pose stood), and a
 /// kitchen start's coarsest level stepped 0.2 mm round a cycle of four for
-/// 54 of its 60 iterations. A level that moves the frame on (a slow pull along what the view barely
-/// pins) leaves it about as far from where it was as its updates add up to,
-/// and is not a cycle.
-#[derive(Clone, Copy)]
+/// 55 of its 60 iterations. A level that moves the frame on (a slow pull
+/// along what the view barely pins) leaves it about as far from where it
+/// was as its updates add up to, and is not a cycle.
 struct Cycle {
     poses: [Pose; CYCLE],
     steps: [f64; CYCLE],
