@@ -15,7 +15,7 @@ fn a_noisy_simulated_sequence_is_tracked_within_a_centimetre() {
     assert_eq!(s["tracking"], true);
     assert_eq!(s["lost"], 0, "{s}");
     let ate = s["ate_rmse_cm"].as_f64().unwrap();
-    // Measured 0.33 cm; the bound is a fifth above it (0.86–0.92 cm before
+    // Measured 0.34 cm; the bound is a fifth above it (0.86–0.92 cm before
     // the weak-view work of the tracker).
     assert!(ate < 0.4, "ATE {ate} cm");
     let stats = std::fs::read_to_string(out.join("stats.csv")).unwrap();
@@ -24,9 +24,9 @@ fn a_noisy_simulated_sequence_is_tracked_within_a_centimetre() {
     ));
     let e = eval_json(&out.join("trajectory.txt"), &out.join("groundtruth.txt"));
     assert_eq!(e["matched"], 20);
-    // Drift: the worst frame is 0.45 cm off (measured); a bound a fifth
-    // above that fails a tracker that drifts faster even while its RMSE
-    // stays within its bound.
+    // Drift: the worst frame is 0.48 cm off (measured; 0.45 before the
+    // cheaper first frame); a bound a seventh above that fails a tracker
+    // that drifts faster even while its RMSE stays within its bound.
     let worst = e["ate_max_cm"].as_f64().unwrap();
     assert!(worst < 0.55, "the camera drifted {worst} cm from its path");
     // The trajectory's shape, rigidly aligned: measured 0.18 cm.
