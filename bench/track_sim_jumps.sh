@@ -11,12 +11,12 @@
 # tracked run's map is held to.
 #
 # Usage: bench/track_sim_jumps.sh [SCENES] [SEEDS] [GAPS]
-#   defaults "table bunnies room plane_and_box sofa_room", "0 1",
+#   defaults "table bunnies room plane_and_box sofa_room chairs", "0 1",
 #   "60:65 100:104 140:145" (A:B, frames A..B-1 left out)
 # Needs ../shared beside the repository (or DEPTHMESH_SHARED) for the bunny.
 set -euo pipefail
 cd "$(dirname "$0")/.."
-scenes=${1:-table bunnies room plane_and_box sofa_room}
+scenes=${1:-table bunnies room plane_and_box sofa_room chairs}
 seeds=${2:-0 1}
 gaps=${3:-60:65 100:104 140:145}
 iterations=200
