@@ -35,6 +35,7 @@ fn track_json(t: &TrackRecord) -> Value {
         LostReason::Contradicted(x) => json!(["contradicted", x]),
         LostReason::Ambiguous(n) => json!(["ambiguous", n]),
         LostReason::Jump(x) => json!(["jump", x]),
+        LostReason::SeenEmpty(x) => json!(["seen_empty", x]),
     });
     json!({
         "ms": t.ms,
@@ -68,6 +69,7 @@ fn track_from(v: &Value) -> Result<TrackRecord, String> {
                 Some("contradicted") => LostReason::Contradicted(x),
                 Some("ambiguous") => LostReason::Ambiguous(x as u8),
                 Some("jump") => LostReason::Jump(x as f32),
+                Some("seen_empty") => LostReason::SeenEmpty(x),
                 _ => return Err("track: unknown reason".into()),
             })
         }
@@ -216,6 +218,7 @@ mod tests {
             LostReason::LargeError(0.03),
             LostReason::Contradicted(0.6),
             LostReason::Ambiguous(2),
+            LostReason::SeenEmpty(0.04),
         ];
         for lost in reasons {
             let mut other = tracked.clone();

@@ -14,11 +14,13 @@
 //! local shape to the map's wherever the camera is
 //! ([`global_registration`]), and from the keyframes most like the frame
 //! ([`ferns`]); a pose found is verified against the map before the frame
-//! is fused.
+//! is fused, and refused where it puts the frame in space the frames before
+//! saw empty ([`free_space`]).
 
 pub mod degeneracy;
 pub mod ferns;
 pub mod filter;
+pub mod free_space;
 pub mod global_registration;
 pub mod icp;
 pub mod pyramid;
