@@ -449,7 +449,7 @@ pub enum LostReason {
     /// The alignment jumped implausibly far from the prediction (metres).
     Jump(f32),
     /// A pose found after a loss puts this share of the frame's points in
-    /// space the map was seen empty in (see [`crate::track::free_space`]).
+    /// space earlier frames saw empty (see [`crate::track::free_space`]).
     SeenEmpty(f64),
 }
 
@@ -476,7 +476,7 @@ impl fmt::Display for LostReason {
             }
             LostReason::SeenEmpty(x) => write!(
                 f,
-                "{:.1} % of the points lie where the map was seen empty",
+                "{:.1} % of the points lie in space earlier frames saw empty",
                 x * 100.0
             ),
         }
