@@ -6,9 +6,9 @@
 //! pose does not, on a static scene.
 //!
 //! Each frame the tracker keeps adds its rays, from its pose, to coarse
-//! cells ([`CELL`]): a cell counts the rays that crossed it and whether a
+//! cells (`CELL`): a cell counts the rays that crossed it and whether a
 //! ray ended (saw a surface) in it. A cell counts as empty only when
-//! [`MIN_CROSSINGS`] rays crossed it and no ray ended in it or in the 26
+//! `MIN_CROSSINGS` rays crossed it and no ray ended in it or in the 26
 //! around it: rays from poses that drift against each other by
 //! centimetres cross cells where others saw a surface, and counting
 //! crossings alone put up to 8 % of the kitchen's right frames in "empty"
@@ -16,7 +16,7 @@
 //! (`docs/tracking-experiments.md`, "Telling a look-alike place from the
 //! camera's own").
 //!
-//! Cost and size: one ray per [`RAY_STRIDE`]² pixels, stepped a cell at a
+//! Cost and size: one ray per `RAY_STRIDE`² pixels, stepped a cell at a
 //! time (the kitchen's 300 frames track as fast as without it, within
 //! run-to-run noise), and a few bytes per cell the rays reached. The cells are not
 //! bounded like the map's active region: a walk of hundreds of metres
