@@ -24,13 +24,12 @@
 
 use super::pyramid::Level;
 use crate::camera::Pose;
+use crate::tsdf::KeyMap;
 use glam::{IVec3, Vec3};
-use std::collections::HashMap;
-use std::hash::{BuildHasherDefault, Hasher};
 
 /// Cell size (metres): a few times the depth noise of a Kinect-class
 /// sensor at room range, so that noise does not reach across a cell.
-pub const CELL: f32 = 0.08;
+const CELL: f32 = 0.08;
 
 /// Rays that must have crossed a cell for it to count as empty: more
 /// than one frame's worth of noise.
@@ -60,36 +59,12 @@ struct Cell {
     surface: bool,
 }
 
-/// The multiply-rotate hash of rustc's hash maps: cells are looked up tens
-/// of thousands of times a frame, and the standard hasher's resistance to
-/// chosen keys buys nothing here.
-#[derive(Clone, Copy, Debug, Default)]
-struct CellHasher(u64);
-
-impl Hasher for CellHasher {
-    fn finish(&self) -> u64 {
-        self.0
-    }
-
-    fn write(&mut self, bytes: &[u8]) {
-        for &b in bytes {
-            self.write_u64(u64::from(b));
-        }
-    }
-
-    fn write_i32(&mut self, i: i32) {
-        self.write_u64(u64::from(i as u32));
-    }
-
-    fn write_u64(&mut self, i: u64) {
-        self.0 = (self.0.rotate_left(5) ^ i).wrapping_mul(0x517c_c1b7_2722_0a95);
-    }
-}
-
 /// Space seen empty by a set of frames (see the module docs).
 #[derive(Clone, Debug, Default)]
 pub struct FreeSpace {
-    cells: HashMap<IVec3, Cell, BuildHasherDefault<CellHasher>>,
+    /// Keyed with the block keys' fast hash: cells are looked up tens of
+    /// thousands of times a frame.
+    cells: KeyMap<Cell>,
     /// Frames added: where the next one's rays start in the stride, so
     /// that successive frames cast different pixels.
     added: usize,
