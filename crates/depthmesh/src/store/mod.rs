@@ -8,7 +8,7 @@
 //!
 //! | table | key | value |
 //! |---|---|---|
-//! | `meta` | name | `format` (u64), `identity` (JSON: settings, camera, dataset), `checkpoint` (JSON: frames integrated, dataset position, time), `tracking` (JSON: the tracker's state), `last_view` (TSDF: the last fused frame's pose and depth, from which ray casting for tracking starts), `resident` (TSDF with bounded memory: the keys of the blocks in memory, LZ4-compressed `i32` triples), `planes` (JSON: the grid's insertions), `mabdi` (JSON: iteration, patches, array lengths) |
+//! | `meta` | name | `format` (u64), `identity` (JSON: settings, camera, dataset), `checkpoint` (JSON: frames integrated, dataset position, time), `tracking` (JSON: the tracker's state), `free_space` (the space its frames saw empty, LZ4-compressed [`FreeSpace::encode`]), `last_view` (TSDF: the last fused frame's pose and depth, from which ray casting for tracking starts), `resident` (TSDF with bounded memory: the keys of the blocks in memory, LZ4-compressed `i32` triples), `planes` (JSON: the grid's insertions), `mabdi` (JSON: iteration, patches, array lengths) |
 //! | `blocks` | TSDF block coordinates | the block's distances, weights (and colours), LZ4-compressed ([`block_codec`]) |
 //! | `cells` | voxel-plane cell, by allocation order | its key and voxel statistics, LZ4-compressed (`cells`) |
 //! | `arrays` | (MABDI array, chunk number) | a chunk of M's positions, colours, triangles or removal votes, LZ4-compressed (`arrays`) |
@@ -36,6 +36,7 @@ use crate::camera::Pose;
 use crate::error::{Error, Result};
 use crate::image::DepthImage;
 use crate::session::{Backend, MapConfig, PoseState, Resumed, SavedMap, Session, SessionConfig};
+use crate::track::free_space::FreeSpace;
 use crate::track::TrackerState;
 use crate::tsdf::archive::BlockArchive;
 use crate::tsdf::mapper::TsdfMapper;
@@ -286,9 +287,14 @@ impl MapStore {
             .iter()
             .map(records::encode)
             .collect();
-        let tracking = session
-            .pose_state()
-            .map(|p| pose_state_json(&p).to_string());
+        let mut pose_state = session.pose_state();
+        // The free space is taken out of the state to be encoded on the
+        // commit's thread: tens of thousands of cells on a room.
+        let free_space = pose_state
+            .as_mut()
+            .and_then(|p| p.tracker.as_mut())
+            .map(|t| std::mem::take(&mut t.free_space));
+        let tracking = pose_state.map(|p| pose_state_json(&p).to_string());
         let checkpoint = json!({
             "frames": map.frames,
             "position": position,
@@ -310,6 +316,10 @@ impl MapStore {
                 let mut meta = txn.open_table(META)?;
                 if let Some(tracking) = &tracking {
                     meta.insert("tracking", tracking.as_bytes())?;
+                }
+                if let Some(free_space) = &free_space {
+                    let bytes = lz4_flex::compress_prepend_size(&free_space.encode());
+                    meta.insert("free_space", bytes.as_slice())?;
                 }
                 meta.insert("checkpoint", checkpoint.as_bytes())?;
                 Ok(bytes)
@@ -608,6 +618,7 @@ fn read_saved(db: &Database, path: &Path, decode: bool) -> Result<Saved> {
         let identity = meta.get("identity")?.map(|v| v.value().to_vec());
         let checkpoint = meta.get("checkpoint")?.map(|v| v.value().to_vec());
         let tracking = meta.get("tracking")?.map(|v| v.value().to_vec());
+        let free_space = meta.get("free_space")?.map(|v| v.value().to_vec());
         let last_view = meta.get("last_view")?.map(|v| v.value().to_vec());
         let resident = meta.get("resident")?.map(|v| v.value().to_vec());
         let mabdi = meta.get("mabdi")?.map(|v| v.value().to_vec());
@@ -620,14 +631,16 @@ fn read_saved(db: &Database, path: &Path, decode: bool) -> Result<Saved> {
         }
         Ok((
             [
-                format, identity, checkpoint, tracking, last_view, resident, mabdi, planes,
+                format, identity, checkpoint, tracking, free_space, last_view, resident, mabdi,
+                planes,
             ],
             stored_blocks,
             records,
         ))
     };
     let (meta, stored_blocks, records) = read().map_err(|e| store_error(path, e))?;
-    let [format, identity, checkpoint, tracking, last_view, resident, mabdi, planes] = meta;
+    let [format, identity, checkpoint, tracking, free_space, last_view, resident, mabdi, planes] =
+        meta;
     let format = format
         .and_then(|f| <[u8; 8]>::try_from(f.as_slice()).ok())
         .map(u64::from_le_bytes)
@@ -661,10 +674,20 @@ fn read_saved(db: &Database, path: &Path, decode: bool) -> Result<Saved> {
         .enumerate()
         .map(|(i, r)| records::decode(r).map_err(|e| bad(format!("record {i}: {e}"))))
         .collect::<Result<Vec<_>>>()?;
-    let poses = match tracking {
+    let mut poses = match tracking {
         Some(t) => Some(pose_state_from(&json(Some(t), "tracking")?).map_err(bad)?),
         None => None,
     };
+    // Absent from stores saved before the tracker kept it: their resumed
+    // runs verify against the space the frames after the resume see.
+    if let (Some(tracker), Some(bytes)) =
+        (poses.as_mut().and_then(|p| p.tracker.as_mut()), free_space)
+    {
+        tracker.free_space = lz4_flex::decompress_size_prepended(&bytes)
+            .map_err(|e| e.to_string())
+            .and_then(|raw| FreeSpace::decode(&raw))
+            .map_err(bad)?;
+    }
     let hashes = arrays::Hashes::default();
     // With bounded memory, the blocks that were in memory.
     let resident: Option<Vec<glam::IVec3>> = resident
@@ -859,6 +882,8 @@ fn pose_state_from(v: &Value) -> std::result::Result<PoseState, String> {
                 .iter()
                 .map(records::pose_from)
                 .collect::<std::result::Result<_, _>>()?,
+            // Kept in an entry of its own ([`read_saved`]).
+            free_space: FreeSpace::default(),
         }),
     };
     Ok(PoseState {

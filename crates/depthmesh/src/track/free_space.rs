@@ -51,7 +51,7 @@ const STOP_CELLS: f32 = 2.0;
 /// One frame point in this many (per direction) is looked up.
 const CHECK_STRIDE: usize = 2;
 
-#[derive(Clone, Copy, Debug, Default)]
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
 struct Cell {
     /// Rays that crossed the cell.
     crossed: u16,
@@ -60,7 +60,7 @@ struct Cell {
 }
 
 /// Space seen empty by a set of frames (see the module docs).
-#[derive(Clone, Debug, Default)]
+#[derive(Clone, Debug, Default, PartialEq)]
 pub struct FreeSpace {
     /// Keyed with the block keys' fast hash: cells are looked up tens of
     /// thousands of times a frame.
@@ -69,6 +69,10 @@ pub struct FreeSpace {
     /// that successive frames cast different pixels.
     added: usize,
 }
+
+/// Bytes of one cell in [`FreeSpace::encode`]: its key (three `i32`),
+/// the rays that crossed it (`u16`) and whether one ended in it (`u8`).
+const CELL_BYTES: usize = 15;
 
 fn cell_of(p: Vec3) -> IVec3 {
     (p / CELL).floor().as_ivec3()
@@ -141,6 +145,56 @@ impl FreeSpace {
         })
     }
 
+    /// The cells as bytes, to save with the tracker's state: the frames
+    /// added (`u64`), then each cell ([`CELL_BYTES`]) in key order, so the
+    /// same space gives the same bytes; little-endian.
+    pub fn encode(&self) -> Vec<u8> {
+        let mut cells: Vec<(&IVec3, &Cell)> = self.cells.iter().collect();
+        cells.sort_unstable_by_key(|(k, _)| k.to_array());
+        let mut out = Vec::with_capacity(8 + cells.len() * CELL_BYTES);
+        out.extend((self.added as u64).to_le_bytes());
+        for (key, cell) in cells {
+            for x in key.to_array() {
+                out.extend(x.to_le_bytes());
+            }
+            out.extend(cell.crossed.to_le_bytes());
+            out.push(u8::from(cell.surface));
+        }
+        out
+    }
+
+    /// The space [`FreeSpace::encode`] wrote; why not, when `bytes` are
+    /// not such.
+    pub fn decode(bytes: &[u8]) -> Result<FreeSpace, String> {
+        let (added, rest) = bytes
+            .split_first_chunk::<8>()
+            .ok_or("free space: no frame count")?;
+        if rest.len() % CELL_BYTES != 0 {
+            return Err(format!(
+                "free space: {} bytes of cells, not whole cells",
+                rest.len()
+            ));
+        }
+        let added = usize::try_from(u64::from_le_bytes(*added))
+            .map_err(|_| "free space: frame count out of range")?;
+        let i = |b: &[u8]| i32::from_le_bytes([b[0], b[1], b[2], b[3]]);
+        let mut cells = KeyMap::default();
+        cells.reserve(rest.len() / CELL_BYTES);
+        for c in rest.chunks_exact(CELL_BYTES) {
+            let surface = match c[14] {
+                0 => false,
+                1 => true,
+                b => return Err(format!("free space: surface flag {b}")),
+            };
+            let key = IVec3::new(i(&c[..4]), i(&c[4..8]), i(&c[8..12]));
+            let crossed = u16::from_le_bytes([c[12], c[13]]);
+            if cells.insert(key, Cell { crossed, surface }).is_some() {
+                return Err(format!("free space: cell {key} twice"));
+            }
+        }
+        Ok(FreeSpace { cells, added })
+    }
+
     /// Of the frame's measured points (camera space), seen from `pose`, the
     /// share that lands in cells seen empty.
     pub fn share_inside(&self, points: &[Vec3], width: usize, pose: &Pose) -> f64 {
@@ -206,5 +260,33 @@ mod tests {
         assert!(s > 0.3, "{s}");
         // A wall beyond the one seen is behind a surface, not in empty space.
         assert_eq!(share(&free, &wall(3.5), &Pose::IDENTITY), 0.0);
+    }
+
+    #[test]
+    fn the_space_comes_back_from_its_bytes_and_bad_bytes_are_refused() {
+        let view = wall(3.0);
+        let mut free = FreeSpace::default();
+        for i in 0..5 {
+            let pose = Pose::new(glam::Mat3::IDENTITY, Vec3::new(0.1 * i as f32, 0.0, 0.0));
+            free.add_view(&view.levels[0], &pose);
+        }
+        let bytes = free.encode();
+        let back = FreeSpace::decode(&bytes).unwrap();
+        assert_eq!(back, free);
+        // The same space gives the same bytes, whatever the map's order.
+        assert_eq!(back.encode(), bytes);
+        // The next frame's rays start where the saved ones' left off.
+        let (mut a, mut b) = (free, back);
+        a.add_view(&view.levels[0], &Pose::IDENTITY);
+        b.add_view(&view.levels[0], &Pose::IDENTITY);
+        assert_eq!(a, b);
+        for bad in [&bytes[..7], &bytes[..bytes.len() - 1]] {
+            assert!(FreeSpace::decode(bad).is_err());
+        }
+        let mut flag = bytes.clone();
+        flag[8 + CELL_BYTES - 1] = 2;
+        assert!(FreeSpace::decode(&flag)
+            .unwrap_err()
+            .contains("surface flag"));
     }
 }

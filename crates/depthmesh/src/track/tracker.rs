@@ -575,6 +575,10 @@ pub struct TrackerState {
     pub keyframe_codes: Vec<u8>,
     /// Their poses.
     pub keyframe_poses: Vec<Pose>,
+    /// The space the frames so far saw empty, which a pose found after a
+    /// loss is held to: without it a resumed run would take the camera to
+    /// a place an uninterrupted one refuses.
+    pub free_space: FreeSpace,
 }
 
 impl TrackerState {
@@ -590,6 +594,7 @@ impl TrackerState {
             last_conditioning: 0.0,
             keyframe_codes: Vec::new(),
             keyframe_poses: Vec::new(),
+            free_space: FreeSpace::default(),
         }
     }
 }
@@ -634,8 +639,7 @@ pub struct Tracker {
     /// registration; made when first needed, grown as keyframes are learnt.
     map_features: MapFeatures,
     /// The space the frames concluded so far saw empty, for verifying a
-    /// pose found after a loss; not saved with [`TrackerState`], so a
-    /// resumed run verifies without it until its frames have seen again.
+    /// pose found after a loss.
     free_space: FreeSpace,
     registration: GlobalRegistration,
 }
@@ -687,6 +691,7 @@ impl Tracker {
             last_conditioning: self.last_conditioning,
             keyframe_codes: codes.to_vec(),
             keyframe_poses: poses.to_vec(),
+            free_space: self.free_space.clone(),
         }
     }
 
@@ -704,6 +709,7 @@ impl Tracker {
         t.last_conditioning = state.last_conditioning;
         t.keyframes
             .restore(state.keyframe_codes, state.keyframe_poses)?;
+        t.free_space = state.free_space;
         Ok(t)
     }
 
