@@ -105,7 +105,7 @@ pub fn run(args: &RelocaliseArgs) -> Result<()> {
         };
         map.integrate(&frame, &pose)
             .with_context(|| format!("frame {}", frame.index))?;
-        tracker.learn_keyframe(&frame.depth, &pose);
+        tracker.learn_view(&frame.depth, &pose);
     }
     // The map's surface is described once, as a tracker does when it is
     // first lost; that is not part of any one attempt.

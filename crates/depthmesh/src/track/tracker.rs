@@ -818,7 +818,7 @@ impl Tracker {
     /// relocalisation: its rays as space seen empty, and the frame as a
     /// keyframe unless one like it is known; whether it was learnt as one.
     /// The tracking state is unchanged.
-    pub fn learn_keyframe(&mut self, depth: &DepthImage, pose: &Pose) -> bool {
+    pub fn learn_view(&mut self, depth: &DepthImage, pose: &Pose) -> bool {
         self.prepare(depth);
         self.free_space.add_view(&self.frame.levels[0], pose);
         self.keyframes

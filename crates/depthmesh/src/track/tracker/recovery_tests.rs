@@ -371,7 +371,7 @@ fn keyframes_around(scene: &Scene, seed: u64) -> (SimulatedSensor, Tracker) {
     let mut tracker = Tracker::new(TrackerConfig::default(), k, Pose::IDENTITY).unwrap();
     for i in 0..36 {
         let pose = around_room(10.0 * i as f32);
-        tracker.learn_keyframe(&sensor.capture(scene, i, &pose).depth, &pose);
+        tracker.learn_view(&sensor.capture(scene, i, &pose).depth, &pose);
     }
     (sensor, tracker)
 }
