@@ -19,8 +19,12 @@
 //! Cost and size: one ray per `RAY_STRIDE`² pixels, stepped a cell at a
 //! time (the kitchen's 300 frames track as fast as without it, within
 //! run-to-run noise), and a few bytes per cell the rays reached. The cells are not
-//! bounded like the map's active region: a walk of hundreds of metres
-//! holds them all.
+//! bounded like the map's active region, and a store saves them whole at
+//! each checkpoint: the kitchen's 300 tracked frames end with 18,301 cells
+//! (0.12 MB compressed), the simulated 60 m corridor walk of
+//! `bench/tsdf_bounded.sh`, tracked, with 467,028 (2.8 MB, compressed in
+//! 11 ms on the commit's thread); a walk of hundreds of metres would want
+//! them kept and saved by region, as the map's blocks are.
 
 use super::pyramid::Level;
 use crate::camera::Pose;
