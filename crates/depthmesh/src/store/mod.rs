@@ -8,15 +8,17 @@
 //!
 //! | table | key | value |
 //! |---|---|---|
-//! | `meta` | name | `format` (u64), `identity` (JSON: settings, camera, dataset), `checkpoint` (JSON: frames integrated, dataset position, time), `tracking` (JSON: the tracker's state), `free_space` (the space its frames saw empty, LZ4-compressed [`FreeSpace::encode`]), `last_view` (TSDF: the last fused frame's pose and depth, from which ray casting for tracking starts), `resident` (TSDF with bounded memory: the keys of the blocks in memory, LZ4-compressed `i32` triples), `planes` (JSON: the grid's insertions), `mabdi` (JSON: iteration, patches, array lengths) |
+//! | `meta` | name | `format` (u64), `identity` (JSON: settings, camera, dataset), `checkpoint` (JSON: frames integrated, dataset position, time), `tracking` (JSON: the tracker's state), `last_view` (TSDF: the last fused frame's pose and depth, from which ray casting for tracking starts), `resident` (TSDF with bounded memory: the keys of the blocks in memory, LZ4-compressed `i32` triples), `planes` (JSON: the grid's insertions), `mabdi` (JSON: iteration, patches, array lengths) |
 //! | `blocks` | TSDF block coordinates | the block's distances, weights (and colours), LZ4-compressed ([`block_codec`]) |
 //! | `cells` | voxel-plane cell, by allocation order | its key and voxel statistics, LZ4-compressed (`cells`) |
 //! | `arrays` | (MABDI array, chunk number) | a chunk of M's positions, colours, triangles or removal votes, LZ4-compressed (`arrays`) |
 //! | `records` | frame order | the frame's record (pose, timings, map size) as JSON ([`records`]) |
+//! | `free_space` | region of the tracker's free space | its cells ([`FreeSpace::encode_region`]), LZ4-compressed |
 //!
 //! A checkpoint writes, in one transaction, what changed since the previous
 //! one — the TSDF blocks fused into, the plane cells added to, the chunks of
-//! M whose bytes differ — and the records since it, so its cost follows what
+//! M whose bytes differ, the regions of the tracker's free space its rays
+//! changed — and the records since it, so its cost follows what
 //! the frames changed, not the map's size. With bounded memory the store is
 //! also where freed TSDF blocks go and come back from ([`archive`]); it then
 //! holds the whole map, and a continued session loads only the blocks that
@@ -53,6 +55,7 @@ pub const FORMAT: u64 = 1;
 const META: TableDefinition<&str, &[u8]> = TableDefinition::new("meta");
 const BLOCKS: TableDefinition<(i32, i32, i32), &[u8]> = TableDefinition::new("blocks");
 const RECORDS: TableDefinition<u64, &[u8]> = TableDefinition::new("records");
+const FREE_SPACE: TableDefinition<(i32, i32, i32), &[u8]> = TableDefinition::new("free_space");
 
 /// An open store, written by checkpoints.
 pub struct MapStore {
@@ -72,6 +75,8 @@ pub struct MapStore {
     color: bool,
     /// Records written so far.
     saved_records: usize,
+    /// Tracking: the frames of free space at the last checkpoint.
+    saved_free_space: usize,
 }
 
 /// What a store holds: enough to continue the session it was written by.
@@ -190,6 +195,7 @@ impl MapStore {
             meta.insert("identity", identity.to_string().as_bytes())?;
             txn.open_table(BLOCKS)?;
             txn.open_table(RECORDS)?;
+            txn.open_table(FREE_SPACE)?;
             txn.open_table(cells::CELLS)?;
             txn.open_table(arrays::ARRAYS)?;
             Ok(())
@@ -237,6 +243,12 @@ impl MapStore {
             })),
             color: colour(&saved.identity),
             saved_records: saved.session.records.len(),
+            saved_free_space: saved
+                .session
+                .poses
+                .as_ref()
+                .and_then(|p| p.tracker.as_ref())
+                .map_or(0, |t| t.free_space.frames()),
             saved_inserts: match &saved.session.map {
                 SavedMap::Planes { inserts, .. } => *inserts,
                 _ => 0,
@@ -288,13 +300,18 @@ impl MapStore {
             .map(records::encode)
             .collect();
         let mut pose_state = session.pose_state();
-        // The free space is taken out of the state to be encoded on the
-        // commit's thread: tens of thousands of cells on a room.
+        let tracking = pose_state.as_ref().map(|p| pose_state_json(p).to_string());
+        // The regions of free space changed since the last checkpoint are
+        // encoded on the commit's thread, from the state's copy (which
+        // shares them with the tracker's until it changes them).
         let free_space = pose_state
             .as_mut()
             .and_then(|p| p.tracker.as_mut())
             .map(|t| std::mem::take(&mut t.free_space));
-        let tracking = pose_state.map(|p| pose_state_json(&p).to_string());
+        let free_after = self.saved_free_space;
+        if let Some(f) = &free_space {
+            self.saved_free_space = f.frames();
+        }
         let checkpoint = json!({
             "frames": map.frames,
             "position": position,
@@ -318,8 +335,13 @@ impl MapStore {
                     meta.insert("tracking", tracking.as_bytes())?;
                 }
                 if let Some(free_space) = &free_space {
-                    let bytes = lz4_flex::compress_prepend_size(&free_space.encode());
-                    meta.insert("free_space", bytes.as_slice())?;
+                    let mut table = txn.open_table(FREE_SPACE)?;
+                    for key in free_space.changed_after(free_after) {
+                        if let Some(raw) = free_space.encode_region(key) {
+                            let bytes = lz4_flex::compress_prepend_size(&raw);
+                            table.insert((key.x, key.y, key.z), bytes.as_slice())?;
+                        }
+                    }
                 }
                 meta.insert("checkpoint", checkpoint.as_bytes())?;
                 Ok(bytes)
@@ -618,7 +640,6 @@ fn read_saved(db: &Database, path: &Path, decode: bool) -> Result<Saved> {
         let identity = meta.get("identity")?.map(|v| v.value().to_vec());
         let checkpoint = meta.get("checkpoint")?.map(|v| v.value().to_vec());
         let tracking = meta.get("tracking")?.map(|v| v.value().to_vec());
-        let free_space = meta.get("free_space")?.map(|v| v.value().to_vec());
         let last_view = meta.get("last_view")?.map(|v| v.value().to_vec());
         let resident = meta.get("resident")?.map(|v| v.value().to_vec());
         let mabdi = meta.get("mabdi")?.map(|v| v.value().to_vec());
@@ -629,18 +650,29 @@ fn read_saved(db: &Database, path: &Path, decode: bool) -> Result<Saved> {
             let (_, v) = entry?;
             records.push(v.value().to_vec());
         }
+        // Absent from stores made before the tracker's free space was kept.
+        let mut free_space = Vec::new();
+        match txn.open_table(FREE_SPACE) {
+            Ok(table) => {
+                for entry in table.iter()? {
+                    let (k, v) = entry?;
+                    free_space.push((k.value(), v.value().to_vec()));
+                }
+            }
+            Err(redb::TableError::TableDoesNotExist(_)) => {}
+            Err(e) => return Err(e.into()),
+        }
         Ok((
             [
-                format, identity, checkpoint, tracking, free_space, last_view, resident, mabdi,
-                planes,
+                format, identity, checkpoint, tracking, last_view, resident, mabdi, planes,
             ],
             stored_blocks,
             records,
+            free_space,
         ))
     };
-    let (meta, stored_blocks, records) = read().map_err(|e| store_error(path, e))?;
-    let [format, identity, checkpoint, tracking, free_space, last_view, resident, mabdi, planes] =
-        meta;
+    let (meta, stored_blocks, records, free_space) = read().map_err(|e| store_error(path, e))?;
+    let [format, identity, checkpoint, tracking, last_view, resident, mabdi, planes] = meta;
     let format = format
         .and_then(|f| <[u8; 8]>::try_from(f.as_slice()).ok())
         .map(u64::from_le_bytes)
@@ -674,20 +706,21 @@ fn read_saved(db: &Database, path: &Path, decode: bool) -> Result<Saved> {
         .enumerate()
         .map(|(i, r)| records::decode(r).map_err(|e| bad(format!("record {i}: {e}"))))
         .collect::<Result<Vec<_>>>()?;
-    let mut poses = match tracking {
-        Some(t) => Some(pose_state_from(&json(Some(t), "tracking")?).map_err(bad)?),
+    let poses = match tracking {
+        Some(t) => {
+            let t = json(Some(t), "tracking")?;
+            let mut poses = pose_state_from(&t).map_err(bad)?;
+            if let Some(tracker) = poses.tracker.as_mut() {
+                // Absent from stores saved before the tracker kept it:
+                // their resumed runs verify against the space the frames
+                // after the resume see.
+                let frames = t["tracker"]["free_space_frames"].as_u64().unwrap_or(0);
+                tracker.free_space = free_space_from(frames as usize, &free_space).map_err(bad)?;
+            }
+            Some(poses)
+        }
         None => None,
     };
-    // Absent from stores saved before the tracker kept it: their resumed
-    // runs verify against the space the frames after the resume see.
-    if let (Some(tracker), Some(bytes)) =
-        (poses.as_mut().and_then(|p| p.tracker.as_mut()), free_space)
-    {
-        tracker.free_space = lz4_flex::decompress_size_prepended(&bytes)
-            .map_err(|e| e.to_string())
-            .and_then(|raw| FreeSpace::decode(&raw))
-            .map_err(bad)?;
-    }
     let hashes = arrays::Hashes::default();
     // With bounded memory, the blocks that were in memory.
     let resident: Option<Vec<glam::IVec3>> = resident
@@ -788,7 +821,7 @@ fn block_bytes(
     Ok(blocks)
 }
 
-/// A TSDF block's coordinates and stored bytes.
+/// A TSDF block's coordinates and stored bytes (or a free-space region's).
 type StoredBlock = ((i32, i32, i32), Vec<u8>);
 
 /// TSDF blocks from their stored bytes.
@@ -836,6 +869,7 @@ fn pose_state_json(p: &PoseState) -> Value {
             "last_conditioning": t.last_conditioning,
             "keyframe_codes": t.keyframe_codes,
             "keyframe_poses": t.keyframe_poses.iter().map(records::pose_array).collect::<Vec<_>>(),
+            "free_space_frames": t.free_space.frames(),
         })),
         "lost": p.lost,
         "lost_frames": p.lost_frames,
@@ -896,6 +930,23 @@ fn pose_state_from(v: &Value) -> std::result::Result<PoseState, String> {
             .ok_or("tracking: no track_seconds")?,
         tracked: count(v, "tracked")?,
     })
+}
+
+/// The tracker's free space of `frames` frames from the store's regions
+/// (their keys and LZ4-compressed bytes).
+fn free_space_from(
+    frames: usize,
+    regions: &[StoredBlock],
+) -> std::result::Result<FreeSpace, String> {
+    let raw = regions
+        .iter()
+        .map(|((x, y, z), bytes)| {
+            lz4_flex::decompress_size_prepended(bytes)
+                .map(|raw| (glam::IVec3::new(*x, *y, *z), raw))
+                .map_err(|e| format!("free space region ({x}, {y}, {z}): {e}"))
+        })
+        .collect::<std::result::Result<Vec<_>, _>>()?;
+    FreeSpace::decode(frames, raw.iter().map(|(k, b)| (*k, b.as_slice())))
 }
 
 /// The last fused view: pose (12 × f32), width and height (u32), then the

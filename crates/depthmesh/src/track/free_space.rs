@@ -18,18 +18,20 @@
 //!
 //! Cost and size: one ray per `RAY_STRIDE`² pixels, stepped a cell at a
 //! time (the kitchen's 300 frames track as fast as without it, within
-//! run-to-run noise), and a few bytes per cell the rays reached. The cells are not
-//! bounded like the map's active region, and a store saves them whole at
-//! each checkpoint: the kitchen's 300 tracked frames end with 18,301 cells
-//! (0.12 MB compressed), the simulated 60 m corridor walk of
-//! `bench/tsdf_bounded.sh`, tracked, with 467,028 (2.8 MB, compressed in
-//! 11 ms on the commit's thread); a walk of hundreds of metres would want
-//! them kept and saved by region, as the map's blocks are.
+//! run-to-run noise). Cells are held by regions of `REGION`³ (1.28 m, 16
+//! KB each), copied on write, so the tracker's state is saved without
+//! copying them and a store writes only the regions changed since its last
+//! checkpoint: the simulated 60 m corridor walk of `bench/tsdf_bounded.sh`,
+//! tracked, ends with 420 regions (6.7 MB), and each checkpoint wrote
+//! 33–53 of them (65–85 KB compressed, about 1 ms). The regions are not
+//! bounded like the map's active region: a walk of hundreds of metres
+//! holds them all.
 
 use super::pyramid::Level;
 use crate::camera::Pose;
 use crate::tsdf::KeyMap;
 use glam::{IVec3, Vec3};
+use std::sync::Arc;
 
 /// Cell size (metres): a few times the depth noise of a Kinect-class
 /// sensor at room range, so that noise does not reach across a cell.
@@ -63,20 +65,50 @@ struct Cell {
     surface: bool,
 }
 
+/// Cells along each side of a region.
+const REGION: i32 = 16;
+
+/// Cells in a region.
+const REGION_CELLS: usize = (REGION * REGION * REGION) as usize;
+
+/// Bytes of one cell in [`FreeSpace::encode_region`]: the rays that
+/// crossed it (`u16`) and whether one ended in it (`u8`).
+const CELL_BYTES: usize = 3;
+
+/// A region's cells, x fastest, and when they last changed.
+#[derive(Clone, Debug)]
+struct Region {
+    /// Shared with the saved copies of the space until written to.
+    cells: Arc<[Cell; REGION_CELLS]>,
+    /// The frames added when a ray last changed a cell of it.
+    changed: usize,
+}
+
+/// Regions are the same when their cells are: when they changed is the
+/// saving's business, not the space's.
+impl PartialEq for Region {
+    fn eq(&self, other: &Self) -> bool {
+        self.cells == other.cells
+    }
+}
+
 /// Space seen empty by a set of frames (see the module docs).
 #[derive(Clone, Debug, Default, PartialEq)]
 pub struct FreeSpace {
     /// Keyed with the block keys' fast hash: cells are looked up tens of
     /// thousands of times a frame.
-    cells: KeyMap<Cell>,
+    regions: KeyMap<Region>,
     /// Frames added: where the next one's rays start in the stride, so
     /// that successive frames cast different pixels.
     added: usize,
 }
 
-/// Bytes of one cell in [`FreeSpace::encode`]: its key (three `i32`),
-/// the rays that crossed it (`u16`) and whether one ended in it (`u8`).
-const CELL_BYTES: usize = 15;
+/// The region holding `cell`, and the cell's index in it.
+fn split(cell: IVec3) -> (IVec3, usize) {
+    let region = cell.div_euclid(IVec3::splat(REGION));
+    let i = cell - region * REGION;
+    (region, (i.x + REGION * (i.y + REGION * i.z)) as usize)
+}
 
 fn cell_of(p: Vec3) -> IVec3 {
     (p / CELL).floor().as_ivec3()
@@ -101,10 +133,7 @@ impl FreeSpace {
                 if p.z <= 0.0 || n == Vec3::ZERO {
                     continue;
                 }
-                self.cells
-                    .entry(cell_of(pose.transform_point(p)))
-                    .or_default()
-                    .surface = true;
+                self.cell_mut(cell_of(pose.transform_point(p))).surface = true;
                 let length = p.length();
                 let direction = p / length;
                 // Grazing rays stop farther back: a floor seen at a low
@@ -116,7 +145,7 @@ impl FreeSpace {
                 while t < stop {
                     let cell = cell_of(pose.transform_point(direction * t));
                     if last != Some(cell) {
-                        let c = self.cells.entry(cell).or_default();
+                        let c = self.cell_mut(cell);
                         c.crossed = c.crossed.saturating_add(1);
                         last = Some(cell);
                     }
@@ -131,8 +160,7 @@ impl FreeSpace {
     /// a right pose's points rarely fall in).
     fn empty(&self, cell: IVec3) -> bool {
         if !self
-            .cells
-            .get(&cell)
+            .cell(cell)
             .is_some_and(|c| c.crossed >= MIN_CROSSINGS && !c.surface)
         {
             return false;
@@ -141,68 +169,101 @@ impl FreeSpace {
             (-1..=1).all(|dy| {
                 (-1..=1).all(|dx| {
                     !self
-                        .cells
-                        .get(&(cell + IVec3::new(dx, dy, dz)))
+                        .cell(cell + IVec3::new(dx, dy, dz))
                         .is_some_and(|c| c.surface)
                 })
             })
         })
     }
 
-    /// The cells as bytes, to save with the tracker's state: the frames
-    /// added (`u64`), then each cell ([`CELL_BYTES`]) in key order, so the
-    /// same space gives the same bytes; little-endian.
-    pub fn encode(&self) -> Vec<u8> {
-        let mut cells: Vec<(&IVec3, &Cell)> = self.cells.iter().collect();
-        cells.sort_unstable_by_key(|(k, _)| k.to_array());
-        let mut out = Vec::with_capacity(8 + cells.len() * CELL_BYTES);
-        out.extend((self.added as u64).to_le_bytes());
-        for (key, cell) in cells {
-            for x in key.to_array() {
-                out.extend(x.to_le_bytes());
-            }
-            out.extend(cell.crossed.to_le_bytes());
-            out.push(u8::from(cell.surface));
-        }
-        out
+    /// `cell`, if a ray reached its region.
+    fn cell(&self, cell: IVec3) -> Option<&Cell> {
+        let (region, i) = split(cell);
+        self.regions.get(&region).map(|r| &r.cells[i])
     }
 
-    /// The space [`FreeSpace::encode`] wrote; why not, when `bytes` are
-    /// not such.
-    pub fn decode(bytes: &[u8]) -> Result<FreeSpace, String> {
-        let (added, rest) = bytes
-            .split_first_chunk::<8>()
-            .ok_or("free space: no frame count")?;
-        if rest.len() % CELL_BYTES != 0 {
-            return Err(format!(
-                "free space: {} bytes of cells, not whole cells",
-                rest.len()
-            ));
+    /// `cell`, to change by the frame being added, its region made (or
+    /// copied, if a saved copy of the space shares it) and marked changed.
+    fn cell_mut(&mut self, cell: IVec3) -> &mut Cell {
+        let (region, i) = split(cell);
+        let r = self.regions.entry(region).or_insert_with(|| Region {
+            cells: Arc::new([Cell::default(); REGION_CELLS]),
+            changed: 0,
+        });
+        r.changed = self.added;
+        &mut Arc::make_mut(&mut r.cells)[i]
+    }
+
+    /// Frames added so far.
+    pub fn frames(&self) -> usize {
+        self.added
+    }
+
+    /// The keys of the regions a frame changed after the first `frames`
+    /// frames were added: what a store must write to hold the space again.
+    pub fn changed_after(&self, frames: usize) -> Vec<IVec3> {
+        self.regions
+            .iter()
+            .filter(|(_, r)| r.changed > frames)
+            .map(|(k, _)| *k)
+            .collect()
+    }
+
+    /// The cells of region `key` as bytes, to save: for each, x fastest,
+    /// the rays that crossed it (`u16`, little-endian) and whether one
+    /// ended in it (`u8`); `None` if no ray reached the region.
+    pub fn encode_region(&self, key: IVec3) -> Option<Vec<u8>> {
+        let region = self.regions.get(&key)?;
+        let mut out = Vec::with_capacity(REGION_CELLS * CELL_BYTES);
+        for c in region.cells.iter() {
+            out.extend(c.crossed.to_le_bytes());
+            out.push(u8::from(c.surface));
         }
-        let added = usize::try_from(u64::from_le_bytes(*added))
-            .map_err(|_| "free space: frame count out of range")?;
-        let i = |b: &[u8]| i32::from_le_bytes([b[0], b[1], b[2], b[3]]);
-        let mut cells = KeyMap::default();
-        cells.reserve(rest.len() / CELL_BYTES);
-        for c in rest.chunks_exact(CELL_BYTES) {
-            let surface = match c[14] {
-                0 => false,
-                1 => true,
-                b => return Err(format!("free space: surface flag {b}")),
+        Some(out)
+    }
+
+    /// The space of `frames` frames whose regions `regions` holds, as
+    /// [`FreeSpace::encode_region`] wrote them; why not, when they are not
+    /// such.
+    pub fn decode<'a>(
+        frames: usize,
+        regions: impl IntoIterator<Item = (IVec3, &'a [u8])>,
+    ) -> Result<FreeSpace, String> {
+        let mut space = FreeSpace {
+            regions: KeyMap::default(),
+            added: frames,
+        };
+        for (key, bytes) in regions {
+            if bytes.len() != REGION_CELLS * CELL_BYTES {
+                return Err(format!("free space region {key}: {} bytes", bytes.len()));
+            }
+            let mut cells = [Cell::default(); REGION_CELLS];
+            for (cell, b) in cells.iter_mut().zip(bytes.chunks_exact(CELL_BYTES)) {
+                let surface = match b[2] {
+                    0 => false,
+                    1 => true,
+                    f => return Err(format!("free space region {key}: surface flag {f}")),
+                };
+                *cell = Cell {
+                    crossed: u16::from_le_bytes([b[0], b[1]]),
+                    surface,
+                };
+            }
+            let region = Region {
+                cells: Arc::new(cells),
+                changed: frames,
             };
-            let key = IVec3::new(i(&c[..4]), i(&c[4..8]), i(&c[8..12]));
-            let crossed = u16::from_le_bytes([c[12], c[13]]);
-            if cells.insert(key, Cell { crossed, surface }).is_some() {
-                return Err(format!("free space: cell {key} twice"));
+            if space.regions.insert(key, region).is_some() {
+                return Err(format!("free space region {key} twice"));
             }
         }
-        Ok(FreeSpace { cells, added })
+        Ok(space)
     }
 
     /// Of the frame's measured points (camera space), seen from `pose`, the
     /// share that lands in cells seen empty.
     pub fn share_inside(&self, points: &[Vec3], width: usize, pose: &Pose) -> f64 {
-        if self.cells.is_empty() || width == 0 {
+        if self.regions.is_empty() || width == 0 {
             return 0.0;
         }
         let (mut measured, mut inside) = (0usize, 0usize);
@@ -267,30 +328,48 @@ mod tests {
     }
 
     #[test]
-    fn the_space_comes_back_from_its_bytes_and_bad_bytes_are_refused() {
+    fn the_space_comes_back_from_its_changed_regions_and_bad_bytes_are_refused() {
         let view = wall(3.0);
+        let step = |i: usize| Pose::new(glam::Mat3::IDENTITY, Vec3::new(0.5 * i as f32, 0.0, 0.0));
         let mut free = FreeSpace::default();
-        for i in 0..5 {
-            let pose = Pose::new(glam::Mat3::IDENTITY, Vec3::new(0.1 * i as f32, 0.0, 0.0));
-            free.add_view(&view.levels[0], &pose);
+        // Saved after three frames, then after two more: the regions the
+        // first save wrote, and over them those changed since.
+        let mut saved = KeyMap::default();
+        let save = |saved: &mut KeyMap<Vec<u8>>, free: &FreeSpace, after: usize| {
+            for key in free.changed_after(after) {
+                saved.insert(key, free.encode_region(key).unwrap());
+            }
+        };
+        for i in 0..3 {
+            free.add_view(&view.levels[0], &step(i));
         }
-        let bytes = free.encode();
-        let back = FreeSpace::decode(&bytes).unwrap();
+        save(&mut saved, &free, 0);
+        let first = saved.len();
+        for i in 3..5 {
+            free.add_view(&view.levels[0], &step(i));
+        }
+        let changed = free.changed_after(3).len();
+        assert!(changed > 0 && changed < free.regions.len(), "{changed}");
+        save(&mut saved, &free, 3);
+        assert!(saved.len() > first);
+        let back = FreeSpace::decode(5, saved.iter().map(|(k, b)| (*k, b.as_slice()))).unwrap();
         assert_eq!(back, free);
-        // The same space gives the same bytes, whatever the map's order.
-        assert_eq!(back.encode(), bytes);
-        // The next frame's rays start where the saved ones' left off.
+        assert_eq!(back.frames(), 5);
+        assert!(back.changed_after(5).is_empty());
+        // The next frame's rays start where the saved ones' left off, and
+        // a copy taken before shares nothing it changes.
+        let copy = back.clone();
         let (mut a, mut b) = (free, back);
         a.add_view(&view.levels[0], &Pose::IDENTITY);
         b.add_view(&view.levels[0], &Pose::IDENTITY);
         assert_eq!(a, b);
-        for bad in [&bytes[..7], &bytes[..bytes.len() - 1]] {
-            assert!(FreeSpace::decode(bad).is_err());
-        }
+        assert_ne!(b, copy);
+        let key = *saved.keys().next().unwrap();
+        let bytes = &saved[&key];
+        assert!(FreeSpace::decode(5, [(key, &bytes[1..])]).is_err());
         let mut flag = bytes.clone();
-        flag[8 + CELL_BYTES - 1] = 2;
-        assert!(FreeSpace::decode(&flag)
-            .unwrap_err()
-            .contains("surface flag"));
+        flag[CELL_BYTES - 1] = 2;
+        let e = FreeSpace::decode(5, [(key, flag.as_slice())]).unwrap_err();
+        assert!(e.contains("surface flag"), "{e}");
     }
 }
