@@ -293,6 +293,10 @@ fn killed_and_resumed(
     let info: serde_json::Value = serde_json::from_slice(&info.stdout).unwrap();
     assert_eq!(info["records"], frames);
     assert_eq!(info["tracked"], track, "{info}");
+    if track {
+        // The tracker's free space went into the store with its state.
+        assert!(info["free_space_regions"].as_u64().unwrap() > 0, "{info}");
+    }
     let held = match info["map"].as_str().unwrap() {
         "tsdf" => "blocks",
         "planes" => "cells",

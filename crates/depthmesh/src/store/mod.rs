@@ -598,13 +598,18 @@ pub fn mesh(path: &Path) -> Result<crate::mesh::Mesh> {
 }
 
 /// What a store holds, for `depthmesh info`: its identity, last checkpoint,
-/// blocks, records and file size.
+/// blocks, records, the tracker's keyframes and free space, and file size.
 pub fn info(path: &Path) -> Result<Value> {
     let (_, saved) = MapStore::open_with(path, false)?;
     let size = std::fs::metadata(path)
         .map_err(|e| Error::io(path, e))?
         .len();
     let voxels = saved.stored_blocks * crate::tsdf::BLOCK_VOXELS;
+    let tracker = saved
+        .session
+        .poses
+        .as_ref()
+        .and_then(|p| p.tracker.as_ref());
     Ok(json!({
         "store": path.display().to_string(),
         "format": FORMAT,
@@ -623,6 +628,8 @@ pub fn info(path: &Path) -> Result<Value> {
             _ => None,
         },
         "tracked": saved.session.poses.is_some(),
+        "keyframes": tracker.map(|t| t.keyframe_poses.len()),
+        "free_space_regions": tracker.map(|t| t.free_space.regions()),
         "voxels": voxels,
         "file_bytes": size,
         "file_bytes_per_voxel": (voxels > 0).then(|| size as f64 / voxels as f64),

@@ -199,6 +199,11 @@ impl FreeSpace {
         self.added
     }
 
+    /// Regions a ray reached.
+    pub fn regions(&self) -> usize {
+        self.regions.len()
+    }
+
     /// The keys of the regions a frame changed after the first `frames`
     /// frames were added: what a store must write to hold the space again.
     pub fn changed_after(&self, frames: usize) -> Vec<IVec3> {
