@@ -18,12 +18,12 @@
 //!
 //! Cost and size: one ray per `RAY_STRIDE`² pixels, stepped a cell at a
 //! time (the kitchen's 300 frames track as fast as without it, within
-//! run-to-run noise). Cells are held by regions of `REGION`³ (1.28 m, 16
-//! KB each), copied on write, so the tracker's state is saved without
+//! run-to-run noise). Cells, a byte each, are held by regions of
+//! `REGION`³ (1.28 m, 4 KB), copied on write, so the tracker's state is saved without
 //! copying them and a store writes only the regions changed since its last
 //! checkpoint: the simulated 60 m corridor walk of `bench/tsdf_bounded.sh`,
-//! tracked, ends with 420 regions (6.7 MB), and each checkpoint wrote
-//! 33–53 of them (65–85 KB compressed, about 1 ms). The regions are not
+//! tracked, ends with 420 regions (1.7 MB), and each checkpoint writes
+//! the few dozen its last second of frames changed. The regions are not
 //! bounded like the map's active region: a walk of hundreds of metres
 //! holds them all.
 
@@ -39,7 +39,7 @@ const CELL: f32 = 0.08;
 
 /// Rays that must have crossed a cell for it to count as empty: more
 /// than one frame's worth of noise.
-const MIN_CROSSINGS: u16 = 3;
+const MIN_CROSSINGS: u8 = 3;
 
 /// Only every this many pixels of a frame, in each direction, is cast
 /// (frames overlap, and the next frame's rays fall between these).
@@ -57,12 +57,38 @@ const STOP_CELLS: f32 = 2.0;
 /// One frame point in this many (per direction) is looked up.
 const CHECK_STRIDE: usize = 2;
 
+/// A cell, in a byte: the rays that crossed it, counted up to
+/// [`MIN_CROSSINGS`] (all that [`FreeSpace::empty`] asks), and whether a
+/// ray ended in it.
 #[derive(Clone, Copy, Debug, Default, PartialEq)]
-struct Cell {
-    /// Rays that crossed the cell.
-    crossed: u16,
-    /// A ray ended in the cell.
-    surface: bool,
+struct Cell(u8);
+
+/// The bits of [`Cell`] that count crossings.
+const CROSSINGS: u8 = 0b011;
+
+/// The bit of [`Cell`] set when a ray ended in it.
+const SURFACE: u8 = 0b100;
+
+const _: () = assert!(MIN_CROSSINGS <= CROSSINGS);
+
+impl Cell {
+    fn crossed(self) -> u8 {
+        self.0 & CROSSINGS
+    }
+
+    fn surface(self) -> bool {
+        self.0 & SURFACE != 0
+    }
+
+    fn cross(&mut self) {
+        if self.crossed() < MIN_CROSSINGS {
+            self.0 += 1;
+        }
+    }
+
+    fn end_ray(&mut self) {
+        self.0 |= SURFACE;
+    }
 }
 
 /// Cells along each side of a region.
@@ -70,10 +96,6 @@ const REGION: i32 = 16;
 
 /// Cells in a region.
 const REGION_CELLS: usize = (REGION * REGION * REGION) as usize;
-
-/// Bytes of one cell in [`FreeSpace::encode_region`]: the rays that
-/// crossed it (`u16`) and whether one ended in it (`u8`).
-const CELL_BYTES: usize = 3;
 
 /// A region's cells, x fastest, and when they last changed.
 #[derive(Clone, Debug)]
@@ -133,7 +155,7 @@ impl FreeSpace {
                 if p.z <= 0.0 || n == Vec3::ZERO {
                     continue;
                 }
-                self.cell_mut(cell_of(pose.transform_point(p))).surface = true;
+                self.cell_mut(cell_of(pose.transform_point(p))).end_ray();
                 let length = p.length();
                 let direction = p / length;
                 // Grazing rays stop farther back: a floor seen at a low
@@ -145,8 +167,7 @@ impl FreeSpace {
                 while t < stop {
                     let cell = cell_of(pose.transform_point(direction * t));
                     if last != Some(cell) {
-                        let c = self.cell_mut(cell);
-                        c.crossed = c.crossed.saturating_add(1);
+                        self.cell_mut(cell).cross();
                         last = Some(cell);
                     }
                     t += CELL;
@@ -161,7 +182,7 @@ impl FreeSpace {
     fn empty(&self, cell: IVec3) -> bool {
         if !self
             .cell(cell)
-            .is_some_and(|c| c.crossed >= MIN_CROSSINGS && !c.surface)
+            .is_some_and(|c| c.crossed() >= MIN_CROSSINGS && !c.surface())
         {
             return false;
         }
@@ -170,7 +191,7 @@ impl FreeSpace {
                 (-1..=1).all(|dx| {
                     !self
                         .cell(cell + IVec3::new(dx, dy, dz))
-                        .is_some_and(|c| c.surface)
+                        .is_some_and(|c| c.surface())
                 })
             })
         })
@@ -214,17 +235,13 @@ impl FreeSpace {
             .collect()
     }
 
-    /// The cells of region `key` as bytes, to save: for each, x fastest,
-    /// the rays that crossed it (`u16`, little-endian) and whether one
-    /// ended in it (`u8`); `None` if no ray reached the region.
+    /// The cells of region `key` as bytes, to save: a byte a cell, x
+    /// fastest, the rays that crossed it (up to three) in its two low bits
+    /// and whether one ended in it in the third; `None` if no ray reached
+    /// the region.
     pub fn encode_region(&self, key: IVec3) -> Option<Vec<u8>> {
         let region = self.regions.get(&key)?;
-        let mut out = Vec::with_capacity(REGION_CELLS * CELL_BYTES);
-        for c in region.cells.iter() {
-            out.extend(c.crossed.to_le_bytes());
-            out.push(u8::from(c.surface));
-        }
-        Some(out)
+        Some(region.cells.iter().map(|c| c.0).collect())
     }
 
     /// The space of `frames` frames whose regions `regions` holds, as
@@ -239,20 +256,15 @@ impl FreeSpace {
             added: frames,
         };
         for (key, bytes) in regions {
-            if bytes.len() != REGION_CELLS * CELL_BYTES {
+            if bytes.len() != REGION_CELLS {
                 return Err(format!("free space region {key}: {} bytes", bytes.len()));
             }
             let mut cells = [Cell::default(); REGION_CELLS];
-            for (cell, b) in cells.iter_mut().zip(bytes.chunks_exact(CELL_BYTES)) {
-                let surface = match b[2] {
-                    0 => false,
-                    1 => true,
-                    f => return Err(format!("free space region {key}: surface flag {f}")),
-                };
-                *cell = Cell {
-                    crossed: u16::from_le_bytes([b[0], b[1]]),
-                    surface,
-                };
+            for (cell, &b) in cells.iter_mut().zip(bytes) {
+                *cell = Cell(b);
+                if b & !(CROSSINGS | SURFACE) != 0 || cell.crossed() > MIN_CROSSINGS {
+                    return Err(format!("free space region {key}: cell byte {b}"));
+                }
             }
             let region = Region {
                 cells: Arc::new(cells),
@@ -373,8 +385,8 @@ mod tests {
         let bytes = &saved[&key];
         assert!(FreeSpace::decode(5, [(key, &bytes[1..])]).is_err());
         let mut flag = bytes.clone();
-        flag[CELL_BYTES - 1] = 2;
+        flag[0] = 0b1000;
         let e = FreeSpace::decode(5, [(key, flag.as_slice())]).unwrap_err();
-        assert!(e.contains("surface flag"), "{e}");
+        assert!(e.contains("cell byte 8"), "{e}");
     }
 }
