@@ -288,9 +288,7 @@ fn killed_and_resumed(
         frames as usize + 1,
         "a row per frame"
     );
-    let info = depthmesh(&["info", store.to_str().unwrap()]);
-    ok(&info);
-    let info: serde_json::Value = serde_json::from_slice(&info.stdout).unwrap();
+    let info = store_info(&store);
     assert_eq!(info["records"], frames);
     assert_eq!(info["tracked"], track, "{info}");
     if track {
@@ -322,6 +320,13 @@ fn killed_and_resumed(
     let from_store = exported(&store, "from-store.glb");
     assert!(from_store > 0);
     assert_eq!(from_store, exported(&run.join("mesh.ply"), "from-mesh.glb"));
+}
+
+/// `depthmesh info` of `store`, which must succeed.
+fn store_info(store: &Path) -> serde_json::Value {
+    let info = depthmesh(&["info", store.to_str().unwrap()]);
+    ok(&info);
+    serde_json::from_slice(&info.stdout).unwrap()
 }
 
 /// Runs `make(DIR/run, store flags)` and kills it with SIGKILL at seeded
@@ -390,9 +395,7 @@ fn interrupted_on_message(
     std::thread::sleep(then);
     child.kill().unwrap();
     child.wait().unwrap();
-    let info = depthmesh(&["info", store.to_str().unwrap()]);
-    ok(&info);
-    let info: serde_json::Value = serde_json::from_slice(&info.stdout).unwrap();
+    let info = store_info(&store);
     let records = info["records"].as_u64().unwrap();
     assert!(
         holding.contains(&records),
@@ -495,9 +498,7 @@ fn a_bounded_walk_there_and_back_killed_and_resumed_equals_the_unbounded_map() {
     assert!(summary["peak_blocks"].as_u64().unwrap() > 0, "{summary}");
     assert!(summary["chunks"].as_u64().unwrap() > 0, "{summary}");
     // The store holds the whole map, not only what was in memory.
-    let info = depthmesh(&["info", store.to_str().unwrap()]);
-    ok(&info);
-    let info: serde_json::Value = serde_json::from_slice(&info.stdout).unwrap();
+    let info = store_info(&store);
     let unbounded_blocks = common::summary(&unbounded)["map_bytes"].as_u64().unwrap() / (512 * 4);
     assert_eq!(info["blocks"].as_u64().unwrap(), unbounded_blocks, "{info}");
     assert!(
