@@ -174,22 +174,8 @@ fn a_tracked_run_killed_and_resumed_across_a_loss_ends_as_never_interrupted() {
 fn a_tracked_run_killed_at_a_jump_refuses_a_look_alike_place_once_resumed() {
     let dir = scratch("store-look-alike");
     std::fs::create_dir_all(&dir).unwrap();
-    let helix = depthmesh::sim::PathSpec::Helix
-        .build(&common::table_scene(), 200)
-        .unwrap();
-    // Written as a run writes its poses (6 decimals): the search after the
-    // jump turns on digits beyond them, and at full precision the camera
-    // was found again a few frames after the jump.
-    let poses: Vec<_> = helix[..100]
-        .iter()
-        .chain(&helix[104..160])
-        .enumerate()
-        .map(|(i, pose)| (i as f64, *pose))
-        .collect();
-    let file = dir.join("jump.txt");
-    std::fs::write(&file, depthmesh::trajectory::format_tum(&poses)).unwrap();
-    let path = format!("tum:{}", file.display());
-    let iterations = poses.len().to_string();
+    let (path, frames) = common::table_jump_path(&dir);
+    let iterations = frames.to_string();
     let args = [
         "--map",
         "tsdf",
@@ -209,7 +195,7 @@ fn a_tracked_run_killed_at_a_jump_refuses_a_look_alike_place_once_resumed() {
     // good frame, 100, and before the camera is found again (frame 140):
     // the space its frames saw can come only from the store.
     let kills = Kills::OnMessage("tracking lost", Duration::from_secs(1), 100..140);
-    killed_and_resumed(&dir, make, poses.len() as u32, true, kills);
+    killed_and_resumed(&dir, make, frames as u32, true, kills);
     // The camera was lost at the jump and found again where it is.
     let reference = dir.join("reference");
     let e = common::eval_json(

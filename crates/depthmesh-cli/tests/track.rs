@@ -474,28 +474,12 @@ fn a_camera_that_jumps_is_never_taken_to_a_table_turned_a_quarter() {
     // from there. The space the frames before saw empty refuses that
     // place, and the camera is found where it is.
     let dir = scratch("track-table-jump");
-    let truth = dir.join("truth");
-    simulate_scene("table", &truth, 200, &[]);
-    let rows: Vec<String> = std::fs::read_to_string(truth.join("trajectory.txt"))
-        .unwrap()
-        .lines()
-        .filter(|l| !l.starts_with('#') && !l.trim().is_empty())
-        .map(str::to_owned)
-        .collect();
-    assert_eq!(rows.len(), 200);
-    let kept: Vec<&String> = rows[..100].iter().chain(&rows[104..160]).collect();
-    let path = dir.join("jump.txt");
-    std::fs::write(
-        &path,
-        kept.iter().map(|r| format!("{r}\n")).collect::<String>(),
-    )
-    .unwrap();
+    let (path, frames) = common::table_jump_path(&dir);
     let out = dir.join("out");
-    let path = format!("tum:{}", path.display());
     track_simulated(
         "table",
         &out,
-        kept.len() as u32,
+        frames as u32,
         &["--path", &path, "--seed", "1"],
     );
     // Every frame tracked lies where the camera is, and the camera is

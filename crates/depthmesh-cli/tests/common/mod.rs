@@ -65,6 +65,29 @@ pub fn table_scene() -> depthmesh::sim::Scene {
     depthmesh::sim::Scene::load(Path::new("../../scenes/table.toml"), &options).unwrap()
 }
 
+/// The table scene's 200-pose helix with frames 100-103 left out (the
+/// camera reappears 0.79 m away), written to `dir/jump.txt` as a run
+/// writes its poses (6 decimals: the search after the jump turns on digits
+/// beyond them, and at full precision the camera was found again a few
+/// frames after the jump, where written so it is lost until frame 140 and
+/// is offered the table turned a quarter); the `--path` value and the
+/// number of poses.
+#[allow(dead_code)] // not every test file needs it
+pub fn table_jump_path(dir: &Path) -> (String, usize) {
+    let helix = depthmesh::sim::PathSpec::Helix
+        .build(&table_scene(), 200)
+        .unwrap();
+    let poses: Vec<_> = helix[..100]
+        .iter()
+        .chain(&helix[104..160])
+        .enumerate()
+        .map(|(i, pose)| (i as f64, *pose))
+        .collect();
+    let file = dir.join("jump.txt");
+    std::fs::write(&file, depthmesh::trajectory::format_tum(&poses)).unwrap();
+    (format!("tum:{}", file.display()), poses.len())
+}
+
 /// The colour the frames folder gives a point of the table scene: the
 /// floor and the bottom of the legs red, everything higher green.
 #[allow(dead_code)] // not every test file needs it
