@@ -467,6 +467,34 @@ fn the_bare_end_of_a_corridor_does_not_run_away_with_the_camera() {
 }
 
 #[test]
+fn a_camera_followed_across_a_jump_to_a_look_alike_place_is_not_fused_there() {
+    // The chairs' helix with frames 100-103 left out (0.7 m on round the
+    // orbit), noise seed 0: ICP followed the camera to where the chairs and
+    // the table look as they do from its own pose, every frame after it
+    // was fused there, and a twenty-fifth of the map's surface lay more
+    // than 2 cm off the scene (96.4 % within). Held to the space the frames
+    // before saw empty, that frame is lost, and the camera is searched for
+    // and found where it is.
+    let dir = scratch("track-chairs-jump");
+    let (path, frames) = common::jump_path(&dir, "chairs", 100..104, 160);
+    let out = dir.join("out");
+    track_simulated(
+        "chairs",
+        &out,
+        frames as u32,
+        &["--path", &path, "--seed", "0"],
+    );
+    let within = summary(&out)["surface_within_2cm"].as_f64().unwrap();
+    assert!(within >= 0.995, "map surface within 2 cm: {within}");
+    let e = eval_json(&out.join("trajectory.txt"), &out.join("groundtruth.txt"));
+    let worst = e["ate_max_cm"].as_f64().unwrap();
+    assert!(worst < 10.0, "a frame was taken {worst} cm off");
+    let matched = e["matched"].as_u64().unwrap();
+    assert!(matched >= 120, "{matched} frames tracked");
+    std::fs::remove_dir_all(dir).unwrap();
+}
+
+#[test]
 fn a_camera_that_jumps_is_never_taken_to_a_table_turned_a_quarter() {
     // The table scene's helix with frames 100-103 left out (0.79 m), noise
     // seed 1: the camera was relocalised 3.3 m off, the table turned a

@@ -61,25 +61,44 @@ pub fn assert_fails_with(output: &Output, needles: &[&str]) {
 /// The table scene the tests simulate.
 #[allow(dead_code)] // not every test file needs it
 pub fn table_scene() -> depthmesh::sim::Scene {
+    scene("table")
+}
+
+/// `scenes/NAME.toml`.
+#[allow(dead_code)] // not every test file needs it
+pub fn scene(name: &str) -> depthmesh::sim::Scene {
     let options = depthmesh::sim::SceneOptions::default();
-    depthmesh::sim::Scene::load(Path::new("../../scenes/table.toml"), &options).unwrap()
+    let file = format!("../../scenes/{name}.toml");
+    depthmesh::sim::Scene::load(Path::new(&file), &options).unwrap()
 }
 
 /// The table scene's 200-pose helix with frames 100-103 left out (the
-/// camera reappears 0.79 m away), written to `dir/jump.txt` as a run
-/// writes its poses (6 decimals: the search after the jump turns on digits
-/// beyond them, and at full precision the camera was found again a few
+/// camera reappears 0.79 m away) and cut at frame 160 (see [`jump_path`]);
+/// written as a run writes its poses, the search after the jump turns on
+/// digits beyond them: at full precision the camera was found again a few
 /// frames after the jump, where written so it is lost until frame 140 and
-/// is offered the table turned a quarter); the `--path` value and the
-/// number of poses.
+/// is offered the table turned a quarter.
 #[allow(dead_code)] // not every test file needs it
 pub fn table_jump_path(dir: &Path) -> (String, usize) {
+    jump_path(dir, "table", 100..104, 160)
+}
+
+/// `scenes/SCENE.toml`'s 200-pose helix with the frames `gap` left out
+/// and cut at frame `end`, written to `dir/jump.txt` as a run writes its
+/// poses (6 decimals); the `--path` value and the number of poses.
+#[allow(dead_code)] // not every test file needs it
+pub fn jump_path(
+    dir: &Path,
+    scene_name: &str,
+    gap: std::ops::Range<usize>,
+    end: usize,
+) -> (String, usize) {
     let helix = depthmesh::sim::PathSpec::Helix
-        .build(&table_scene(), 200)
+        .build(&scene(scene_name), 200)
         .unwrap();
-    let poses: Vec<_> = helix[..100]
+    let poses: Vec<_> = helix[..gap.start]
         .iter()
-        .chain(&helix[104..160])
+        .chain(&helix[gap.end..end])
         .enumerate()
         .map(|(i, pose)| (i as f64, *pose))
         .collect();
