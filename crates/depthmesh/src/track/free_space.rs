@@ -1,9 +1,9 @@
-//! Space the frames have seen empty, for verifying a pose found without a
-//! prediction: a frame whose points land deep inside it sees something
-//! where earlier frames saw through to a surface behind. A place that
-//! merely looks alike from where the frame was taken (a room's quarter
-//! turn, a second table) puts part of the frame there; the camera's own
-//! pose does not, on a static scene.
+//! Space the frames have seen empty, for verifying a pose, followed or
+//! found without a prediction: a frame whose points land deep inside it
+//! sees something where earlier frames saw through to a surface behind. A
+//! place that merely looks alike from where the frame was taken (a room's
+//! quarter turn, a second table, chairs further round) puts part of the
+//! frame there; the camera's own pose does not, on a static scene.
 //!
 //! Each frame the tracker keeps adds its rays, from its pose, to coarse
 //! cells (`CELL`): a cell counts the rays that crossed it and whether a

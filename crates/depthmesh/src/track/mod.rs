@@ -8,14 +8,14 @@
 //! — coarse to fine, starting from a constant-velocity guess ([`tracker`]).
 //! Directions the view barely constrains (a floor, a long wall) keep the
 //! guess instead of following the noise ([`degeneracy`]). A frame is lost
-//! only when it contradicts the map: too few matches, a large residual or
-//! an implausible jump; it is not fused. The camera is then searched for
+//! only when it contradicts the map: too few matches, a large residual, an
+//! implausible jump, or points where earlier frames saw empty space
+//! ([`free_space`]); it is not fused. The camera is then searched for
 //! near its last pose, turned on the spot there, by matching the frame's
 //! local shape to the map's wherever the camera is
 //! ([`global_registration`]), and from the keyframes most like the frame
 //! ([`ferns`]); a pose found is verified against the map before the frame
-//! is fused, and refused where it puts the frame in space the frames before
-//! saw empty ([`free_space`]).
+//! is fused, and held to the space seen empty as a followed one is.
 
 pub mod degeneracy;
 pub mod ferns;
