@@ -90,6 +90,8 @@ pub struct Saved {
     pub session: Resumed,
     /// Blocks in the store (TSDF maps).
     pub stored_blocks: usize,
+    /// Regions of the tracker's free space in the store.
+    pub stored_regions: usize,
     /// With bounded memory, how many blocks were in memory.
     pub resident_blocks: Option<usize>,
     /// The hashes of the chunks of a MABDI map the store holds.
@@ -212,9 +214,9 @@ impl MapStore {
         Self::open_with(path, true)
     }
 
-    /// [`MapStore::open`]; a TSDF map's blocks are read only when `blocks`
-    /// (reading what a store holds, or meshing it a slab at a time, needs
-    /// none in memory).
+    /// [`MapStore::open`]; a TSDF map's blocks and the tracker's free space
+    /// are read only when `blocks` (reading what a store holds, or meshing
+    /// it a slab at a time, needs neither in memory; only a resume does).
     fn open_with(path: &Path, blocks: bool) -> Result<(Self, Saved)> {
         if !path.is_file() {
             return Err(Error::format(path, "no store here"));
@@ -629,7 +631,7 @@ pub fn info(path: &Path) -> Result<Value> {
         },
         "tracked": saved.session.poses.is_some(),
         "keyframes": tracker.map(|t| t.keyframe_poses.len()),
-        "free_space_regions": tracker.map(|t| t.free_space.regions()),
+        "free_space_regions": tracker.is_some().then_some(saved.stored_regions),
         "voxels": voxels,
         "file_bytes": size,
         "file_bytes_per_voxel": (voxels > 0).then(|| size as f64 / voxels as f64),
@@ -659,11 +661,15 @@ fn read_saved(db: &Database, path: &Path, decode: bool) -> Result<Saved> {
         }
         // Absent from stores made before the tracker's free space was kept.
         let mut free_space = Vec::new();
+        let mut stored_regions = 0;
         match txn.open_table(FREE_SPACE) {
             Ok(table) => {
-                for entry in table.iter()? {
-                    let (k, v) = entry?;
-                    free_space.push((k.value(), v.value().to_vec()));
+                stored_regions = table.len()? as usize;
+                if decode {
+                    for entry in table.iter()? {
+                        let (k, v) = entry?;
+                        free_space.push((k.value(), v.value().to_vec()));
+                    }
                 }
             }
             Err(redb::TableError::TableDoesNotExist(_)) => {}
@@ -673,12 +679,13 @@ fn read_saved(db: &Database, path: &Path, decode: bool) -> Result<Saved> {
             [
                 format, identity, checkpoint, tracking, last_view, resident, mabdi, planes,
             ],
-            stored_blocks,
+            [stored_blocks, stored_regions],
             records,
             free_space,
         ))
     };
-    let (meta, stored_blocks, records, free_space) = read().map_err(|e| store_error(path, e))?;
+    let (meta, [stored_blocks, stored_regions], records, free_space) =
+        read().map_err(|e| store_error(path, e))?;
     let [format, identity, checkpoint, tracking, last_view, resident, mabdi, planes] = meta;
     let format = format
         .and_then(|f| <[u8; 8]>::try_from(f.as_slice()).ok())
@@ -796,6 +803,7 @@ fn read_saved(db: &Database, path: &Path, decode: bool) -> Result<Saved> {
             poses,
         },
         stored_blocks,
+        stored_regions,
         resident_blocks: resident.map(|r| r.len()),
         hashes,
     })
@@ -805,7 +813,7 @@ fn read_saved(db: &Database, path: &Path, decode: bool) -> Result<Saved> {
 fn block_bytes(
     db: &Database,
     keys: Option<&[glam::IVec3]>,
-) -> std::result::Result<Vec<StoredBlock>, redb::Error> {
+) -> std::result::Result<Vec<KeyedBytes>, redb::Error> {
     let txn = db.begin_read()?;
     let table = txn.open_table(BLOCKS)?;
     let mut blocks = Vec::new();
@@ -828,13 +836,14 @@ fn block_bytes(
     Ok(blocks)
 }
 
-/// A TSDF block's coordinates and stored bytes (or a free-space region's).
-type StoredBlock = ((i32, i32, i32), Vec<u8>);
+/// An entry of a table keyed by integer coordinates, with its stored
+/// bytes: a TSDF block's or a free-space region's.
+type KeyedBytes = ((i32, i32, i32), Vec<u8>);
 
 /// TSDF blocks from their stored bytes.
 fn decode_blocks(
     identity: &Value,
-    bytes: Vec<StoredBlock>,
+    bytes: Vec<KeyedBytes>,
 ) -> std::result::Result<Vec<crate::tsdf::Block>, String> {
     let color = colour(identity);
     bytes
@@ -943,7 +952,7 @@ fn pose_state_from(v: &Value) -> std::result::Result<PoseState, String> {
 /// (their keys and LZ4-compressed bytes).
 fn free_space_from(
     frames: usize,
-    regions: &[StoredBlock],
+    regions: &[KeyedBytes],
 ) -> std::result::Result<FreeSpace, String> {
     let raw = regions
         .iter()
