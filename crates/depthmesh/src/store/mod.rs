@@ -880,6 +880,7 @@ fn pose_state_json(p: &PoseState) -> Value {
             "last_good": records::pose_array(&t.last_good),
             "velocity": records::pose_array(&t.velocity),
             "lost_streak": t.lost_streak,
+            "held_streak": t.held_streak,
             "velocity_known": t.velocity_known,
             "fine_first": t.fine_first,
             "last_conditioning": t.last_conditioning,
@@ -907,6 +908,8 @@ fn pose_state_from(v: &Value) -> std::result::Result<PoseState, String> {
             last_good: records::pose_from(&t["last_good"])?,
             velocity: records::pose_from(&t["velocity"])?,
             lost_streak: count(t, "lost_streak")?,
+            // Absent from sessions saved before followed frames were held.
+            held_streak: count(t, "held_streak").unwrap_or(0),
             velocity_known: t["velocity_known"]
                 .as_bool()
                 .ok_or("tracking: no velocity_known")?,

@@ -518,6 +518,14 @@ pub struct Tracked {
 }
 
 impl Tracked {
+    /// Whether ICP aligned the frame with the map's view, though the pose
+    /// may put its points in space seen empty: another view would align
+    /// it no better, and a frame held for that
+    /// ([`Tracker::hold`]) should cost what a followed one does.
+    fn aligned(&self) -> bool {
+        !matches!(self.lost, Some(l) if !matches!(l, LostReason::SeenEmpty(_)))
+    }
+
     /// A frame the map's view gave nothing to align with.
     fn empty(pose: Pose) -> Tracked {
         Tracked {
@@ -564,6 +572,9 @@ pub struct TrackerState {
     pub velocity: Pose,
     /// Frames lost since the last good one.
     pub lost_streak: usize,
+    /// Frames followed but not fused since the last fused one (see
+    /// `Tracker::hold`).
+    pub held_streak: usize,
     /// Whether `velocity` was measured between consecutive frames.
     pub velocity_known: bool,
     /// Whether the next frame is tried against the frame-resolution view
@@ -589,6 +600,7 @@ impl TrackerState {
             last_good,
             velocity,
             lost_streak: 0,
+            held_streak: 0,
             velocity_known: true,
             fine_first: false,
             last_conditioning: 0.0,
@@ -622,6 +634,9 @@ pub struct Tracker {
     velocity: Pose,
     /// Frames lost since the last good one.
     lost_streak: usize,
+    /// Frames followed but held back from fusion since the last one fused
+    /// ([`Tracker::hold`]).
+    held_streak: usize,
     /// Whether `velocity` was measured (false at the start and after a
     /// loss): without it, ICP starts from no motion and may need to travel
     /// far, so the coarsest level gets more iterations.
@@ -672,6 +687,7 @@ impl Tracker {
             last_good: start,
             velocity: Pose::IDENTITY,
             lost_streak: 0,
+            held_streak: 0,
             velocity_known: false,
             fine_first: false,
             last_conditioning: 0.0,
@@ -686,6 +702,7 @@ impl Tracker {
             last_good: self.last_good,
             velocity: self.velocity,
             lost_streak: self.lost_streak,
+            held_streak: self.held_streak,
             velocity_known: self.velocity_known,
             fine_first: self.fine_first,
             last_conditioning: self.last_conditioning,
@@ -704,6 +721,7 @@ impl Tracker {
         let mut t = Tracker::new(config, intrinsics, state.last_good)?;
         t.velocity = state.velocity;
         t.lost_streak = state.lost_streak;
+        t.held_streak = state.held_streak;
         t.velocity_known = state.velocity_known;
         t.fine_first = state.fine_first;
         t.last_conditioning = state.last_conditioning;
@@ -761,6 +779,18 @@ impl Tracker {
             looked = Some((near, up));
         }
         let followed = self.follow(map);
+        let held = matches!(followed.lost, Some(LostReason::SeenEmpty(_)))
+            && self.kept_its_course(&followed);
+        // A held frame kept its course, so it is as likely where the camera
+        // is as any frame followed; the search, which costs about what a
+        // hundred followed frames do in the simulated room, is the way out
+        // should it not be, tried on the eighth held frame in a row, the
+        // sixteenth, the thirty-second… (something that moved into view
+        // may stay there for seconds).
+        let searched = (self.held_streak + 1).is_power_of_two() && self.held_streak + 1 >= 8;
+        if held && !searched {
+            return self.hold(followed);
+        }
         let Some(reason) = followed.lost else {
             let before = looked.map_or(0, |(near, _)| near.iterations);
             let followed = Tracked {
@@ -790,7 +820,39 @@ impl Tracker {
                 ..followed
             },
         };
+        if found.lost.is_some() && held {
+            return self.hold(result);
+        }
         self.conclude(result, true)
+    }
+
+    /// A followed frame that puts its points in space seen empty, where the
+    /// search found no pose that does not: not fused, but followed on from
+    /// the pose found. Something may have moved into view at that pose (a
+    /// person walking into the room): the next frames are followed as
+    /// before, and fused again once it is gone. Or the pose is a place
+    /// that only looks like the camera's: the next frames, still there, are
+    /// held too, and searched for, until the search finds the camera.
+    ///
+    /// Only a frame that kept its course ([`Tracker::kept_its_course`]) is
+    /// held; one that did not is lost, as any frame following loses.
+    fn hold(&mut self, result: Tracked) -> Tracked {
+        self.velocity = self.last_good.inverse().compose(&result.pose);
+        self.last_good = result.pose;
+        self.last_conditioning = result.conditioning;
+        self.held_streak += 1;
+        result
+    }
+
+    /// Whether `followed` lies within the verification distance of where
+    /// the motion from the last good pose predicted it. A camera carried
+    /// across a jump to a place that only looks like its own got there by
+    /// leaving its course (the chairs, 0.8 m on round the orbit: 6.4 cm
+    /// from the prediction, where the kitchen's frames stay within 1.6 cm
+    /// of it); something moving into view leaves the camera on it.
+    fn kept_its_course(&self, followed: &Tracked) -> bool {
+        let predicted = self.last_good.compose(&self.velocity);
+        (followed.pose.translation - predicted.translation).length() <= self.config.verify_distance
     }
 
     /// The camera model [`Tracker::track_against`] expects the model view in.
@@ -896,7 +958,7 @@ impl Tracker {
     /// [`TrackerConfig::refine_conditioning`] asks: no other view or start
     /// is tried for it.
     fn aligned_well(&self, t: &Tracked) -> bool {
-        t.lost.is_none() && t.conditioning >= self.config.refine_conditioning
+        t.aligned() && t.conditioning >= self.config.refine_conditioning
     }
 
     /// [`Tracker::follow`]'s alignment from `predicted` (the motion from
@@ -931,7 +993,8 @@ impl Tracker {
             let t = self.icp(self.last_good, predicted, Search::Follow);
             iterations += t.iterations;
             let better = best.is_none_or(|b| {
-                (t.lost.is_none(), t.conditioning) > (b.lost.is_none(), b.conditioning)
+                (t.lost.is_none(), t.aligned(), t.conditioning)
+                    > (b.lost.is_none(), b.aligned(), b.conditioning)
             });
             if better {
                 best = Some(t);
@@ -946,7 +1009,7 @@ impl Tracker {
             // fine view's pose was the one kept on every frame, and
             // skipping the coarse try left their trajectories unchanged to
             // the last digit.
-            if good || (fine_first && t.lost.is_none()) {
+            if good || (fine_first && t.aligned()) {
                 break;
             }
         }
@@ -1341,10 +1404,12 @@ impl Tracker {
                     .add_view(&self.frame.levels[0], &result.pose);
                 self.last_good = result.pose;
                 self.lost_streak = 0;
+                self.held_streak = 0;
                 result.pose
             }
             Some(_) => {
                 self.lost_streak += 1;
+                self.held_streak = 0;
                 self.velocity_known = false;
                 self.last_conditioning = 0.0;
                 self.last_good
