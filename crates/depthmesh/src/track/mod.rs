@@ -10,7 +10,9 @@
 //! guess instead of following the noise ([`degeneracy`]). A frame is lost
 //! only when it contradicts the map: too few matches, a large residual, an
 //! implausible jump, or points where earlier frames saw empty space
-//! ([`free_space`]); it is not fused. The camera is then searched for
+//! ([`free_space`]) at a pose off the motion's course; it is not fused. A
+//! frame that kept its course but put points there (something moved into
+//! view) is held: followed on, not fused. The camera is then searched for
 //! near its last pose, turned on the spot there, by matching the frame's
 //! local shape to the map's wherever the camera is
 //! ([`global_registration`]), and from the keyframes most like the frame
