@@ -827,8 +827,8 @@ impl Tracker {
     }
 
     /// A followed frame that puts its points in space seen empty, where the
-    /// search found no pose that does not: not fused, but followed on from
-    /// the pose found. Something may have moved into view at that pose (a
+    /// search, if it ran, found no pose that does not: not fused, but
+    /// followed on from the pose found. Something may have moved into view at that pose (a
     /// person walking into the room): the next frames are followed as
     /// before, and fused again once it is gone. Or the pose is a place
     /// that only looks like the camera's: the next frames, still there, are
