@@ -91,12 +91,14 @@ fn simulate_writes_the_run_contract() {
 /// Runs `simulate` with `args` into a fresh folder; it must fail naming
 /// `needles` and leave the folder without any output.
 fn rejects(name: &str, args: &[&str], needles: &[&str]) {
-    let out = scratch(name).join("out");
+    let dir = scratch(name);
+    let out = dir.join("out");
     let o = out.to_str().unwrap();
     let mut all = vec!["simulate", "--quiet", "--out", o];
     all.extend_from_slice(args);
     assert_fails_with(&depthmesh(&all), needles);
     assert!(!out.exists(), "a rejected run created {}", out.display());
+    std::fs::remove_dir_all(dir).unwrap();
 }
 
 #[test]
@@ -137,6 +139,7 @@ fn bad_scenes_are_reported_by_file() {
         ],
         &["broken.ply"],
     );
+    std::fs::remove_dir_all(dir).unwrap();
 }
 
 #[test]

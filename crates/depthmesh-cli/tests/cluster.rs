@@ -109,6 +109,13 @@ fn triangles(path: &Path) -> Vec<[[u32; 3]; 3]> {
     out
 }
 
+/// Removes a test's scratch folder at its end. The nats-server and the
+/// processes a test started write into it until they are dropped, after
+/// this: what they add meanwhile is left behind, not an error.
+fn remove_scratch(dir: &Path) {
+    let _ = std::fs::remove_dir_all(dir);
+}
+
 /// A scratch folder for test `name` with `count` simulated frames of the
 /// table scene in `frames/`, and a nats-server of its own.
 fn setup(name: &str, count: u32) -> (PathBuf, PathBuf, NatsServer) {
@@ -282,6 +289,7 @@ fn a_worker_killed_halfway_loses_no_frame_and_fuses_none_twice() {
     // Both list blocks in key order: the same map is the same file.
     assert!(std::fs::read(&fetched).unwrap() == std::fs::read(&replayed).unwrap());
     drop((w1, w3));
+    remove_scratch(&dir);
 }
 
 #[test]
@@ -340,6 +348,7 @@ fn sensors_published_in_folder_order_give_the_map_reconstruct_makes() {
     assert_eq!(code, 404);
     assert!(String::from_utf8_lossy(&body).contains("cluster fetch"));
     drop(workers);
+    remove_scratch(&dir);
 }
 
 #[test]
@@ -401,6 +410,7 @@ fn a_sensor_without_poses_is_tracked_once_even_when_its_tracker_dies() {
     let (report, fetched) = fetch(&dir, url, "track");
     assert_tracked_as_reconstruct(&dir, &frames, &report, &fetched, 40);
     drop((worker, trackers));
+    remove_scratch(&dir);
 }
 
 /// For the library's lease keeping: a nats-server of its own, a runtime,
@@ -585,6 +595,7 @@ fn a_worker_stopped_with_the_bus_gone_gives_up_saying_so() {
     assert!(!status.success());
     let said = std::fs::read_to_string(&log).unwrap();
     assert!(said.contains("could not hand the shards over"), "{said}");
+    remove_scratch(&dir);
 }
 
 /// One worker (leases of `lease` seconds, a checkpoint every 4 frames)
@@ -640,7 +651,8 @@ fn a_worker_and_a_tracker_ride_out_a_restart_of_the_bus() {
     // Down for longer than a request's timeout and than the leases: the
     // shards and the sensor are free when the bus comes back, and must be
     // taken again from the checkpoints and from the posed subject.
-    ride_out_a_restart("restart", "1.5", Duration::from_secs(20), false);
+    let (dir, _) = ride_out_a_restart("restart", "1.5", Duration::from_secs(20), false);
+    remove_scratch(&dir);
 }
 
 #[test]
@@ -664,6 +676,7 @@ fn an_outage_shorter_than_the_leases_keeps_every_shard_and_sensor_where_it_was()
     if let Some(failed) = tracker.lines().find(|l| l.contains("trying again")) {
         eprintln!("the tracker's first failed request: {failed}");
     }
+    remove_scratch(&dir);
 }
 
 #[test]
@@ -719,4 +732,5 @@ fn what_a_site_cannot_take_is_refused_saying_what() {
         &["site s", "other settings", "voxel is 0.01 there, 0.02 here"],
     );
     drop(w1);
+    remove_scratch(&dir);
 }

@@ -89,6 +89,7 @@ fn export_chunks_cover_the_mesh_within_the_limit() {
             "collision is coarse"
         );
     }
+    std::fs::remove_dir_all(dir).unwrap();
 }
 
 #[test]
@@ -119,6 +120,7 @@ fn export_scales_turns_and_simplifies() {
         "{b:?}"
     );
     assert!(b.extent().z < 0.11 * 50.0, "{b:?}");
+    std::fs::remove_dir_all(dir).unwrap();
 }
 
 #[test]
@@ -140,6 +142,7 @@ fn simplify_writes_the_target_in_any_format() {
         assert!(mesh.triangle_count() <= 2 * 299 * 299 / 20 + 2, "{name}");
         assert_eq!(mesh.colors.len(), mesh.vertex_count(), "{name}");
     }
+    std::fs::remove_dir_all(dir).unwrap();
 }
 
 #[test]
@@ -206,6 +209,7 @@ fn bad_input_fails_clearly_and_writes_nothing() {
         .collect();
     left.sort();
     assert_eq!(left, ["garbage.ply", "in.ply"]);
+    std::fs::remove_dir_all(dir).unwrap();
 }
 
 #[test]
@@ -249,4 +253,6 @@ fn simulate_exports_its_final_mesh() {
         &["--simplify"],
     );
     assert!(!bad.join("mesh.ply").exists());
+    std::fs::remove_dir_all(dir).unwrap();
+    std::fs::remove_dir_all(bad).unwrap();
 }
