@@ -5,7 +5,7 @@ mod common;
 
 use common::{assert_fails_with, depthmesh, eval_json, ok, scratch, summary};
 use serde_json::Value;
-use std::path::PathBuf;
+use std::path::{Path, PathBuf};
 
 #[test]
 fn a_noisy_simulated_sequence_is_tracked_within_a_centimetre() {
@@ -74,16 +74,7 @@ fn saved_simulated_frames_are_tracked_as_the_simulator_tracked_them() {
     // were its depth units, intrinsics or pose convention wrong, the
     // estimates would be far from the simulator's true poses.
     let out = dir.join("rec");
-    ok(&depthmesh(&[
-        "reconstruct",
-        frames.to_str().unwrap(),
-        "--voxel",
-        "0.02",
-        "--track",
-        "--quiet",
-        "--out",
-        out.to_str().unwrap(),
-    ]));
+    track_folder(&frames, &out);
     assert_eq!(summary(&out)["lost_frames"], 0);
     let e = eval_json(&out.join("trajectory.txt"), &sim.join("groundtruth.txt"));
     assert_eq!(e["matched"], 12);
@@ -183,6 +174,21 @@ fn track_across_jump(
     let matched = e["matched"].as_u64().unwrap();
     assert!(matched >= tracked, "{matched} frames tracked");
     (dir, out)
+}
+
+/// `reconstruct --track` (2 cm TSDF) of the frames folder `frames` from
+/// its first pose, into `out`.
+fn track_folder(frames: &Path, out: &Path) {
+    ok(&depthmesh(&[
+        "reconstruct",
+        frames.to_str().unwrap(),
+        "--voxel",
+        "0.02",
+        "--track",
+        "--quiet",
+        "--out",
+        out.to_str().unwrap(),
+    ]));
 }
 
 /// Tracks `iterations` frames of the room along a line with Kinect noise
@@ -565,16 +571,7 @@ fn a_person_walking_into_a_mapped_room_is_followed_and_not_fused() {
         }
     }
     let out = dir.join("rec");
-    ok(&depthmesh(&[
-        "reconstruct",
-        mix.to_str().unwrap(),
-        "--voxel",
-        "0.02",
-        "--track",
-        "--quiet",
-        "--out",
-        out.to_str().unwrap(),
-    ]));
+    track_folder(&mix, &out);
     let s = summary(&out);
     let held = s["lost_frames"].as_u64().unwrap();
     assert!((1..=20).contains(&held), "{held} frames not fused: {s}");
