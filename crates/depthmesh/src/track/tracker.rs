@@ -523,7 +523,7 @@ impl Tracked {
     /// it no better, and a frame held for that
     /// ([`Tracker::hold`]) should cost what a followed one does.
     fn aligned(&self) -> bool {
-        !matches!(self.lost, Some(l) if !matches!(l, LostReason::SeenEmpty(_)))
+        matches!(self.lost, None | Some(LostReason::SeenEmpty(_)))
     }
 
     /// A frame the map's view gave nothing to align with.
@@ -1377,6 +1377,8 @@ impl Tracker {
     /// nowhere when it was lost. `searched`: the result is the search for
     /// a lost camera's, not following's.
     fn conclude(&mut self, result: Tracked, searched: bool) -> Tracked {
+        // Fused or lost, the frame ends a streak of held ones.
+        self.held_streak = 0;
         let pose = match result.lost {
             None => {
                 self.last_conditioning = result.conditioning;
@@ -1404,12 +1406,10 @@ impl Tracker {
                     .add_view(&self.frame.levels[0], &result.pose);
                 self.last_good = result.pose;
                 self.lost_streak = 0;
-                self.held_streak = 0;
                 result.pose
             }
             Some(_) => {
                 self.lost_streak += 1;
-                self.held_streak = 0;
                 self.velocity_known = false;
                 self.last_conditioning = 0.0;
                 self.last_good
