@@ -419,7 +419,7 @@ fn lease_site(
     name: &str,
     ttl: Duration,
 ) -> (NatsServer, tokio::runtime::Runtime, depthmesh_cluster::Site) {
-    let nats = NatsServer::start(&scratch(&format!("cluster-lease-{name}")));
+    let nats = NatsServer::in_scratch(&format!("cluster-lease-{name}"));
     let runtime = tokio::runtime::Runtime::new().unwrap();
     let site = runtime
         .block_on(depthmesh_cluster::Site::connect(&nats.url, name, Some(ttl)))
@@ -437,7 +437,7 @@ fn processes_opening_a_new_site_at_once_all_open_it() {
     // alone in 3 of 3 (rounds 26–56): fewer rounds would miss it.
     const ROUNDS: usize = 60;
     const OPENERS: usize = 12;
-    let nats = NatsServer::start(&scratch("cluster-at-once"));
+    let nats = NatsServer::in_scratch("cluster-at-once");
     let runtime = tokio::runtime::Runtime::new().unwrap();
     for round in 0..ROUNDS {
         let name = format!("together{round}");

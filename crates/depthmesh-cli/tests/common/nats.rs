@@ -1,5 +1,6 @@
 //! A JetStream-enabled `nats-server` on a loopback port of its own choosing,
-//! its data in a scratch folder, stopped when dropped.
+//! its data in a scratch folder, stopped when dropped (and the folder
+//! removed, when the server made it).
 
 use std::path::Path;
 use std::process::{Child, Command, Stdio};
@@ -12,6 +13,8 @@ pub struct NatsServer {
     pub url: String,
     /// The scratch folder its store and ports file are in.
     dir: std::path::PathBuf,
+    /// Whether the folder is the server's own, removed once it stops.
+    owns_dir: bool,
 }
 
 impl NatsServer {
@@ -19,6 +22,15 @@ impl NatsServer {
     /// `nats-server` is not installed (`.ci/cluster` installs it).
     pub fn start(dir: &Path) -> NatsServer {
         Self::start_on(dir, "-1")
+    }
+
+    /// Starts one in a scratch folder of its own for test `name`, removed
+    /// when the server is dropped.
+    #[allow(dead_code)] // not every test file needs one without a folder
+    pub fn in_scratch(name: &str) -> NatsServer {
+        let mut server = Self::start(&super::scratch(name));
+        server.owns_dir = true;
+        server
     }
 
     /// Starts one on `port` ("-1": any free one).
@@ -59,6 +71,7 @@ impl NatsServer {
             child,
             url,
             dir: dir.to_path_buf(),
+            owns_dir: false,
         }
     }
 
@@ -74,9 +87,11 @@ impl NatsServer {
         assert!(status.success());
         self.child.wait().unwrap();
         std::thread::sleep(down);
-        let again = Self::start_on(&self.dir, &port);
+        let mut again = Self::start_on(&self.dir, &port);
         assert_eq!(again.url, self.url, "nats-server came back elsewhere");
-        // The old one's child is reaped already: dropping it does nothing.
+        // The folder passes to the new one with the store in it; the old
+        // one's child is reaped already, so dropping it does nothing.
+        again.owns_dir = std::mem::take(&mut self.owns_dir);
         drop(std::mem::replace(self, again));
     }
 }
@@ -113,5 +128,8 @@ impl Drop for NatsServer {
     fn drop(&mut self) {
         let _ = self.child.kill();
         let _ = self.child.wait();
+        if self.owns_dir {
+            let _ = std::fs::remove_dir_all(&self.dir);
+        }
     }
 }
