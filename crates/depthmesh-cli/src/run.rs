@@ -15,6 +15,10 @@ pub fn report_event(bar: &ProgressBar, frame: usize, event: Option<TrackEvent>) 
         Some(TrackEvent::Lost(reason)) => {
             format!("frame {frame}: tracking lost, not fused: {reason}")
         }
+        Some(TrackEvent::Held(reason)) => format!(
+            "frame {frame}: held, not fused, followed on: {reason} \
+             (something in view that was not there before, or a place that looks alike)"
+        ),
         Some(TrackEvent::Recovered { after }) => format!(
             "frame {frame}: tracking recovered after {after} lost frame{}",
             if after == 1 { "" } else { "s" }
@@ -46,8 +50,13 @@ pub fn print_summary(summary: &Map<String, Value>, out: &Path, quiet: bool) {
         get("vertices"),
     );
     if summary.get("tracking") == Some(&Value::Bool(true)) {
+        // Held frames are rare, and named only when there were some.
+        let held = match get("held_frames") {
+            0.0 => String::new(),
+            n => format!(", {n} of them held (followed on past something new in view)"),
+        };
         line += &format!(
-            "; tracking lost {} time(s), {} frame(s) not fused ({:.0} % fused), \
+            "; tracking lost {} time(s), {} frame(s) not fused ({:.0} % fused){held}, \
              {} found again in the frame following lost them, {} {WEAK_FRAMES}",
             get("lost"),
             get("lost_frames"),

@@ -21,7 +21,7 @@ fn a_noisy_simulated_sequence_is_tracked_within_a_centimetre() {
     assert!(ate < 0.4, "ATE {ate} cm");
     let stats = std::fs::read_to_string(out.join("stats.csv")).unwrap();
     assert!(stats.lines().next().unwrap().ends_with(
-        ",conditioning,lost,icp_iterations,weak_directions,weak_axes,relocalised,recovered"
+        ",conditioning,lost,icp_iterations,weak_directions,weak_axes,relocalised,recovered,held"
     ));
     let e = eval_json(&out.join("trajectory.txt"), &out.join("groundtruth.txt"));
     assert_eq!(e["matched"], 20);
@@ -575,6 +575,21 @@ fn a_person_walking_into_a_mapped_room_is_followed_and_not_fused() {
     let s = summary(&out);
     let held = s["lost_frames"].as_u64().unwrap();
     assert!((1..=20).contains(&held), "{held} frames not fused: {s}");
+    // Each was held, followed on, not a lost camera, and reads so.
+    assert_eq!(s["held_frames"].as_u64(), Some(held), "{s}");
+    let stats = std::fs::read_to_string(out.join("stats.csv")).unwrap();
+    let column = stats
+        .lines()
+        .next()
+        .unwrap()
+        .split(',')
+        .position(|c| c == "held");
+    let column = column.expect("stats.csv has a held column");
+    let rows = stats
+        .lines()
+        .skip(1)
+        .map(|r| r.split(',').nth(column).unwrap());
+    assert_eq!(rows.filter(|&c| c == "1").count() as u64, held);
     let trajectory = std::fs::read_to_string(out.join("trajectory.txt")).unwrap();
     let fused: Vec<u32> = trajectory
         .lines()

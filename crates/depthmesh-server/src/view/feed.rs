@@ -281,6 +281,7 @@ impl Feed {
         let last = records.last();
         let state = match last.and_then(|r| r.track.as_ref()) {
             None => "given poses",
+            Some(t) if t.held => "held (something new in view)",
             Some(t) if t.lost.is_some() => "lost",
             Some(t) if t.relocalised => "relocalised",
             Some(t) if t.recovered => "found again",

@@ -167,6 +167,8 @@ struct Tally {
     weak: usize,
     /// Lost by following and found by the search in the same frame.
     recovered: usize,
+    /// Lost for space seen empty, but followed on (not fused).
+    held: usize,
 }
 
 impl Tally {
@@ -179,6 +181,8 @@ impl Tally {
             if r.track.is_some_and(|t| t.recovered) {
                 self.recovered += 1;
             }
+        } else if r.track.is_some_and(|t| t.held) {
+            self.held += 1;
         }
     }
 }
@@ -436,7 +440,9 @@ impl Session {
 
     /// The run's summary keys that do not depend on the front end:
     /// `frames_fused` and `fused_fraction`; `tracking`, and when tracking
-    /// `lost` (times lost), `lost_frames`, `recovered_frames` (frames
+    /// `lost` (times lost), `lost_frames`, `held_frames` (of those, the
+    /// frames followed on but not fused for space seen empty: something in
+    /// view where earlier frames saw through), `recovered_frames` (frames
     /// following lost and the search found in the same frame, fused),
     /// `weak_frames` (frames fused with
     /// a direction left to the motion model: the view did not pin it down,
@@ -458,6 +464,7 @@ impl Session {
         if self.poses.tracking() {
             summary.insert("lost".into(), json!(self.poses.lost));
             summary.insert("lost_frames".into(), json!(self.poses.lost_frames));
+            summary.insert("held_frames".into(), json!(self.tally.held));
             summary.insert("recovered_frames".into(), json!(self.tally.recovered));
             summary.insert("weak_frames".into(), json!(self.weak_frames()));
             summary.insert(

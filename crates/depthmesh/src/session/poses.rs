@@ -33,6 +33,9 @@ pub struct TrackRecord {
     pub recovered: bool,
     /// Why the frame was lost (and not fused), if it was.
     pub lost: Option<LostReason>,
+    /// Lost for space seen empty, but followed on from its pose: something
+    /// in view where earlier frames saw through (see [`Tracked::held`]).
+    pub held: bool,
 }
 
 /// A change of tracking state, worth telling the person watching.
@@ -40,6 +43,9 @@ pub struct TrackRecord {
 pub enum TrackEvent {
     /// The first frame of a run of lost frames.
     Lost(LostReason),
+    /// The first frame of a run of lost frames, held: followed on from its
+    /// pose but not fused, for this reason (see [`Tracked::held`]).
+    Held(LostReason),
     /// The first good frame after `after` lost ones.
     Recovered {
         /// Frames lost before this one.
@@ -179,6 +185,7 @@ impl PoseSource {
         self.track_seconds += ms / 1e3;
         self.tracked += 1;
         let event = match (t.lost, self.streak) {
+            (Some(reason), 0) if t.held => Some(TrackEvent::Held(reason)),
             (Some(reason), 0) => Some(TrackEvent::Lost(reason)),
             (None, n) if n > 0 => Some(TrackEvent::Recovered { after: n }),
             (None, _) => t.recovered_from.map(TrackEvent::FoundAgain),
@@ -205,6 +212,7 @@ impl PoseSource {
                 relocalised: t.relocalised,
                 recovered: t.recovered_from.is_some(),
                 lost: t.lost,
+                held: t.held,
             }),
             event,
         }

@@ -201,7 +201,7 @@ fn write_stats(path: &Path, session: &Session) -> Result<()> {
             write!(
                 w,
                 ",track_ms,inlier_fraction,residual_mm,conditioning,lost,icp_iterations,\
-                 weak_directions,weak_axes,relocalised,recovered"
+                 weak_directions,weak_axes,relocalised,recovered,held"
             )?;
         }
         writeln!(w)?;
@@ -224,7 +224,7 @@ fn write_stats(path: &Path, session: &Session) -> Result<()> {
             match (tracked, r.track) {
                 (true, Some(t)) => write!(
                     w,
-                    ",{:.3},{:.4},{:.3},{:.5},{},{},{},{},{},{}",
+                    ",{:.3},{:.4},{:.3},{:.5},{},{},{},{},{},{},{}",
                     t.ms,
                     t.inlier_fraction,
                     t.residual_mm,
@@ -234,9 +234,10 @@ fn write_stats(path: &Path, session: &Session) -> Result<()> {
                     t.weak_directions,
                     axes_label(t.weak_axes),
                     u8::from(t.relocalised),
-                    u8::from(t.recovered)
+                    u8::from(t.recovered),
+                    u8::from(t.held)
                 )?,
-                (true, None) => write!(w, ",,,,,0,,,,0,0")?,
+                (true, None) => write!(w, ",,,,,0,,,,0,0,0")?,
                 (false, _) => {}
             }
             writeln!(w)?;

@@ -47,6 +47,7 @@ fn track_json(t: &TrackRecord) -> Value {
         "weak_axes": t.weak_axes,
         "relocalised": t.relocalised,
         "recovered": t.recovered,
+        "held": t.held,
         "lost": lost,
     })
 }
@@ -85,9 +86,21 @@ fn track_from(v: &Value) -> Result<TrackRecord, String> {
         relocalised: v["relocalised"].as_bool().ok_or("track: no relocalised")?,
         // Absent from records saved before the search started in the frame
         // following lost: none was found there.
-        recovered: v["recovered"].as_bool().unwrap_or(false),
+        recovered: flag(v, "recovered")?,
+        // Absent from records saved before followed frames were held.
+        held: flag(v, "held")?,
         lost,
     })
+}
+
+/// Boolean `key` of a track record, false when absent (a record saved
+/// before the key was written); an error when present but not a boolean.
+fn flag(v: &Value, key: &str) -> Result<bool, String> {
+    match &v[key] {
+        Value::Null => Ok(false),
+        Value::Bool(b) => Ok(*b),
+        other => Err(format!("track: {key} is {other}, not true or false")),
+    }
 }
 
 /// The record in `bytes`.
@@ -208,10 +221,21 @@ mod tests {
                 relocalised: true,
                 recovered: false,
                 lost: Some(LostReason::Jump(0.41)),
+                held: false,
             }),
             ..r
         };
         assert_eq!(decode(encode(&tracked).as_bytes()).unwrap(), tracked);
+        let mut held = tracked.clone();
+        held.track.as_mut().expect("tracked").held = true;
+        assert_eq!(decode(encode(&held).as_bytes()).unwrap(), held);
+        // Older records lack the flags; a malformed one is an error.
+        let mut older: Value = serde_json::from_str(&encode(&held)).unwrap();
+        older["track"].as_object_mut().unwrap().remove("held");
+        let back = decode(older.to_string().as_bytes()).unwrap();
+        assert!(!back.track.expect("tracked").held);
+        older["track"]["held"] = json!(1);
+        assert!(decode(older.to_string().as_bytes()).is_err());
         let reasons = [
             LostReason::EmptyModel,
             LostReason::FewInliers(0.2),

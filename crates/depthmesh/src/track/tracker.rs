@@ -515,6 +515,12 @@ pub struct Tracked {
     /// Why following lost this frame, when the search for the lost camera
     /// then found it (see [`Tracker::track`]): it is not lost.
     pub recovered_from: Option<LostReason>,
+    /// The frame is lost for space seen empty but was followed on from its
+    /// pose, having kept its course: something in view where earlier
+    /// frames saw through, such as a person walking in, more likely than a
+    /// lost camera. Held frames are searched for on the 8th, 16th, 32nd…
+    /// in a row.
+    pub held: bool,
 }
 
 impl Tracked {
@@ -540,6 +546,7 @@ impl Tracked {
             weak_axes: 0,
             relocalised: false,
             recovered_from: None,
+            held: false,
         }
     }
 }
@@ -841,7 +848,10 @@ impl Tracker {
         self.last_good = result.pose;
         self.last_conditioning = result.conditioning;
         self.held_streak += 1;
-        result
+        Tracked {
+            held: true,
+            ..result
+        }
     }
 
     /// Whether `followed` lies within the verification distance of where
@@ -1297,6 +1307,7 @@ impl Tracker {
             weak_axes: weak.axes,
             relocalised: false,
             recovered_from: None,
+            held: false,
         };
         (tracked, agree)
     }
