@@ -908,8 +908,12 @@ fn pose_state_from(v: &Value) -> std::result::Result<PoseState, String> {
             last_good: records::pose_from(&t["last_good"])?,
             velocity: records::pose_from(&t["velocity"])?,
             lost_streak: count(t, "lost_streak")?,
-            // Absent from sessions saved before followed frames were held.
-            held_streak: count(t, "held_streak").unwrap_or(0),
+            // Absent from sessions saved before followed frames were held;
+            // present, it must be a count like the others.
+            held_streak: match &t["held_streak"] {
+                Value::Null => 0,
+                _ => count(t, "held_streak")?,
+            },
             velocity_known: t["velocity_known"]
                 .as_bool()
                 .ok_or("tracking: no velocity_known")?,
