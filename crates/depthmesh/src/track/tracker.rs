@@ -521,6 +521,9 @@ pub struct Tracked {
     /// lost camera. Held frames are searched for on the 8th, 16th, 32nd…
     /// in a row.
     pub held: bool,
+    /// How far (metres) the pose lies from the prediction it was aligned
+    /// from: the motion from the last good pose, or no motion.
+    pub deviation: f32,
 }
 
 impl Tracked {
@@ -547,6 +550,7 @@ impl Tracked {
             relocalised: false,
             recovered_from: None,
             held: false,
+            deviation: 0.0,
         }
     }
 }
@@ -855,14 +859,15 @@ impl Tracker {
     }
 
     /// Whether `followed` lies within the verification distance of where
-    /// the motion from the last good pose predicted it. A camera carried
+    /// it was predicted, from the motion or from no motion (when the frame
+    /// after the camera was found again was aligned from both,
+    /// [`Tracker::start_still`]). A camera carried
     /// across a jump to a place that only looks like its own got there by
     /// leaving its course (the chairs, 0.8 m on round the orbit: 6.4 cm
     /// from the prediction, where the kitchen's frames stay within 1.6 cm
     /// of it); something moving into view leaves the camera on it.
     fn kept_its_course(&self, followed: &Tracked) -> bool {
-        let predicted = self.last_good.compose(&self.velocity);
-        (followed.pose.translation - predicted.translation).length() <= self.config.verify_distance
+        followed.deviation <= self.config.verify_distance
     }
 
     /// The camera model [`Tracker::track_against`] expects the model view in.
@@ -1308,6 +1313,7 @@ impl Tracker {
             relocalised: false,
             recovered_from: None,
             held: false,
+            deviation: jump,
         };
         (tracked, agree)
     }
