@@ -12,18 +12,21 @@
 //! around it: rays from poses that drift against each other by
 //! centimetres cross cells where others saw a surface, and counting
 //! crossings alone put up to 8 % of the kitchen's right frames in "empty"
-//! space, against at most 0.02 % with the surfaces counted
+//! space, against at most 0.02 % with the surfaces counted (cells of 8 cm
+//! then)
 //! (`docs/tracking-experiments.md`, "Telling a look-alike place from the
 //! camera's own").
 //!
-//! Cost and size: one ray per `RAY_STRIDE`² pixels, stepped a cell at a
-//! time (the kitchen's 300 frames track as fast as without it, within
-//! run-to-run noise). Cells, a byte each, are held by regions of
-//! `REGION`³ (1.28 m, 4 KB), copied on write, so the tracker's state is saved without
-//! copying them and a store writes only the regions changed since its last
-//! checkpoint: the simulated 60 m corridor walk of `bench/tsdf_bounded.sh`,
-//! tracked, ends with 420 regions (1.7 MB), and each checkpoint writes
-//! the few dozen its last second of frames changed. The regions are not
+//! Cost and size: one ray per `RAY_STRIDE`² pixels, walked through every
+//! cell it passes (the kitchen's 300 frames track as fast as with 8 cm
+//! cells, within run-to-run noise). Cells, a byte each, are held by
+//! regions of `REGION`³ (1.28 m, 32 KB), copied on write, so the
+//! tracker's state is saved without copying them and a store writes only
+//! the regions changed since its last checkpoint: the simulated 60 m
+//! corridor walk (`bench/corridor_walk.py 60`, straight, `simulate --track
+//! --store`) ends with 433 regions (13.9 MB; its peak memory 1.52 GB
+//! against 1.51 with 8 cm cells, its store 281.0 MB against 278.9), and
+//! each checkpoint writes the few dozen its last second of frames changed. The regions are not
 //! bounded like the map's active region: a walk of hundreds of metres
 //! holds them all.
 
@@ -34,8 +37,16 @@ use glam::{IVec3, Vec3};
 use std::sync::Arc;
 
 /// Cell size (metres): a few times the depth noise of a Kinect-class
-/// sensor at room range, so that noise does not reach across a cell.
-const CELL: f32 = 0.08;
+/// sensor at room range, so that noise does not reach across a cell, and
+/// small enough that what stands on a surface rises out of the cells kept
+/// clear around it (a ray stops [`STOP_CELLS`] short of its surface, and
+/// a cell next to a surface is not empty). With 8 cm cells those were the
+/// 16–24 cm above a floor, and a floor with a 25 cm box, followed to a
+/// place where the box stands on bare floor, put 0.73 % of the frame in
+/// space seen empty; with 4 cm, the camera's own poses put at most 0.40 %
+/// of the kitchen's frames there (0.26 % with 8 cm) and that place is
+/// refused (`docs/tracking-experiments.md`, "Finer cells").
+const CELL: f32 = 0.04;
 
 /// Rays that must have crossed a cell for it to count as empty: more
 /// than one frame's worth of noise.
@@ -91,8 +102,16 @@ impl Cell {
     }
 }
 
-/// Cells along each side of a region.
-const REGION: i32 = 16;
+/// Cells along each side of a region (1.28 m), a power of two.
+const REGION: i32 = 1 << REGION_BITS;
+
+/// The bits of a cell's coordinates that place it in its region.
+const REGION_BITS: i32 = 5;
+
+/// Cells along each side of a region as stores saved them when cells were
+/// twice as large (8 cm; the same 1.28 m regions): each such cell is read
+/// as the eight it holds now.
+const COARSE_REGION: i32 = 16;
 
 /// Cells in a region.
 const REGION_CELLS: usize = (REGION * REGION * REGION) as usize;
@@ -127,9 +146,56 @@ pub struct FreeSpace {
 
 /// The region holding `cell`, and the cell's index in it.
 fn split(cell: IVec3) -> (IVec3, usize) {
-    let region = cell.div_euclid(IVec3::splat(REGION));
-    let i = cell - region * REGION;
+    // An arithmetic shift floors, as a region's key must for cells below 0.
+    let region = cell >> REGION_BITS;
+    let i = cell & (REGION - 1);
     (region, (i.x + REGION * (i.y + REGION * i.z)) as usize)
+}
+
+/// The cells a ray from `start` along the unit vector `direction` crosses
+/// within `length` metres, in order, into `cells` (cleared first): each
+/// cell it passes through once, stepping from cell face to cell face
+/// (Amanatides and Woo's traversal), so a ray that clips a cell's corner
+/// counts it, and no position along the ray is rounded to a cell.
+fn walk(start: Vec3, direction: Vec3, length: f32, cells: &mut Vec<IVec3>) {
+    cells.clear();
+    let mut cell = cell_of(start);
+    // Per axis: the step between cells, the distance along the ray to the
+    // next face, and the distance between faces.
+    let mut step = [0i32; 3];
+    let mut next = [f32::INFINITY; 3];
+    let mut delta = [f32::INFINITY; 3];
+    for axis in 0..3 {
+        let d = direction[axis];
+        if d > 0.0 {
+            step[axis] = 1;
+            next[axis] = ((cell[axis] + 1) as f32 * CELL - start[axis]) / d;
+            delta[axis] = CELL / d;
+        } else if d < 0.0 {
+            step[axis] = -1;
+            next[axis] = (cell[axis] as f32 * CELL - start[axis]) / d;
+            delta[axis] = -CELL / d;
+        }
+    }
+    loop {
+        cells.push(cell);
+        let axis = if next[0] < next[1] {
+            if next[0] < next[2] {
+                0
+            } else {
+                2
+            }
+        } else if next[1] < next[2] {
+            1
+        } else {
+            2
+        };
+        if next[axis] > length {
+            return;
+        }
+        cell[axis] += step[axis];
+        next[axis] += delta[axis];
+    }
 }
 
 fn cell_of(p: Vec3) -> IVec3 {
@@ -142,12 +208,19 @@ impl FreeSpace {
     pub fn add_view(&mut self, view: &Level, pose: &Pose) {
         let (w, h) = view.size();
         // Successive frames cast pixels offset by steps coprime to the
-        // stride, covering it in turn.
+        // stride, and every `RAY_STRIDE` frames the rows shift by another
+        // such step, so that `RAY_STRIDE`² frames cast every offset once:
+        // without that shift the offsets repeated every `RAY_STRIDE`
+        // frames, and a camera holding still saw one cell in two of 4 cm
+        // at 2 m crossed by too few rays.
         let (u0, v0) = (
             (self.added * 5) % RAY_STRIDE,
-            (self.added * 11) % RAY_STRIDE,
+            (self.added * 11 + self.added / RAY_STRIDE * 7) % RAY_STRIDE,
         );
         self.added += 1;
+        let (origin, rotation) = (pose.translation, pose.rotation);
+        // The cells one ray crosses, reused from ray to ray.
+        let mut crossed = Vec::new();
         for v in (v0..h).step_by(RAY_STRIDE) {
             for u in (u0..w).step_by(RAY_STRIDE) {
                 let i = v * w + u;
@@ -162,16 +235,30 @@ impl FreeSpace {
                 // angle is near the ray long before the ray reaches it.
                 let facing = direction.dot(n).abs().max(0.05);
                 let stop = length - STOP_CELLS * CELL / facing;
-                let mut last = None;
-                let mut t = RAY_START;
-                while t < stop {
-                    let cell = cell_of(pose.transform_point(direction * t));
-                    if last != Some(cell) {
-                        self.cell_mut(cell).cross();
-                        last = Some(cell);
-                    }
-                    t += CELL;
+                if stop > RAY_START {
+                    let world = rotation * direction;
+                    walk(
+                        origin + world * RAY_START,
+                        world,
+                        stop - RAY_START,
+                        &mut crossed,
+                    );
+                    self.cross(&crossed);
                 }
+            }
+        }
+    }
+
+    /// Counts a ray's crossing of `cells`, looking each region up once for
+    /// the cells in a row that lie in it (a ray crosses tens of cells a
+    /// region, and a lookup a cell cost the kitchen's tracking a quarter
+    /// of its speed with rays every 8 pixels).
+    fn cross(&mut self, cells: &[IVec3]) {
+        let mut cells = cells.iter().map(|&c| split(c)).peekable();
+        while let Some(&(key, _)) = cells.peek() {
+            let region = self.region_mut(key);
+            while let Some((_, i)) = cells.next_if(|&(k, _)| k == key) {
+                region[i].cross();
             }
         }
     }
@@ -207,12 +294,19 @@ impl FreeSpace {
     /// copied, if a saved copy of the space shares it) and marked changed.
     fn cell_mut(&mut self, cell: IVec3) -> &mut Cell {
         let (region, i) = split(cell);
-        let r = self.regions.entry(region).or_insert_with(|| Region {
+        &mut self.region_mut(region)[i]
+    }
+
+    /// The cells of region `key`, to change by the frame being added, made
+    /// (or copied, if a saved copy of the space shares them) and marked
+    /// changed.
+    fn region_mut(&mut self, key: IVec3) -> &mut [Cell; REGION_CELLS] {
+        let r = self.regions.entry(key).or_insert_with(|| Region {
             cells: Arc::new([Cell::default(); REGION_CELLS]),
             changed: 0,
         });
         r.changed = self.added;
-        &mut Arc::make_mut(&mut r.cells)[i]
+        Arc::make_mut(&mut r.cells)
     }
 
     /// Frames added so far.
@@ -256,11 +350,17 @@ impl FreeSpace {
             added: frames,
         };
         for (key, bytes) in regions {
-            if bytes.len() != REGION_CELLS {
-                return Err(format!("free space region {key}: {} bytes", bytes.len()));
-            }
+            let scale = match bytes.len() {
+                REGION_CELLS => 1,
+                n if n == (COARSE_REGION * COARSE_REGION * COARSE_REGION) as usize => 2,
+                n => return Err(format!("free space region {key}: {n} bytes")),
+            };
+            let side = REGION / scale;
             let mut cells = [Cell::default(); REGION_CELLS];
-            for (cell, &b) in cells.iter_mut().zip(bytes) {
+            for (i, cell) in cells.iter_mut().enumerate() {
+                let i = i as i32;
+                let (x, y, z) = (i % REGION, (i / REGION) % REGION, i / (REGION * REGION));
+                let b = bytes[((x / scale) + side * ((y / scale) + side * (z / scale))) as usize];
                 *cell = Cell(b);
                 if b & !(CROSSINGS | SURFACE) != 0 || cell.crossed() > MIN_CROSSINGS {
                     return Err(format!("free space region {key}: cell byte {b}"));
@@ -388,5 +488,62 @@ mod tests {
         flag[0] = 0b1000;
         let e = FreeSpace::decode(5, [(key, flag.as_slice())]).unwrap_err();
         assert!(e.contains("cell byte 8"), "{e}");
+    }
+
+    #[test]
+    fn a_ray_walks_every_cell_it_passes_through_once_face_to_face() {
+        let mut cells = Vec::new();
+        let rays = [
+            (Vec3::new(0.01, 0.02, 0.03), Vec3::new(1.0, 0.0, 0.0)),
+            (Vec3::new(-0.3, 0.5, -0.07), Vec3::new(0.3, -0.5, 0.8)),
+            (Vec3::new(1.99, -2.01, 0.0), Vec3::new(-0.7, -0.1, -0.2)),
+        ];
+        for (start, direction) in rays {
+            let direction = direction.normalize();
+            let length = 1.3;
+            walk(start, direction, length, &mut cells);
+            for pair in cells.windows(2) {
+                let d = (pair[1] - pair[0]).abs();
+                assert_eq!(d.x + d.y + d.z, 1, "{pair:?}");
+            }
+            // Sampled every tenth of a millimetre, the ray meets no other
+            // cell (up to its last millimetre, where the walk may stop
+            // short of a face the sample crossed).
+            for k in 0..=(length * 1e4) as i32 {
+                let t = k as f32 * 1e-4;
+                let near = cell_of(start + direction * t);
+                assert!(
+                    cells.contains(&near) || t > length - 1e-3,
+                    "{near} at {t} m"
+                );
+            }
+            let mut unique = cells.clone();
+            unique.sort_by_key(|c| c.to_array());
+            unique.dedup();
+            assert_eq!(unique.len(), cells.len());
+            assert_eq!(cells[0], cell_of(start));
+        }
+    }
+
+    #[test]
+    fn a_region_saved_with_cells_twice_as_large_is_read_as_eight_cells_each() {
+        let side = COARSE_REGION as usize;
+        let mut coarse = vec![0u8; side * side * side];
+        // Coarse cell (1, 2, 3): crossed three times; (0, 0, 0): a surface.
+        coarse[1 + side * (2 + side * 3)] = MIN_CROSSINGS;
+        coarse[0] = SURFACE;
+        let key = IVec3::new(-1, 0, 2);
+        let space = FreeSpace::decode(7, [(key, coarse.as_slice())]).unwrap();
+        let region = key * REGION;
+        let crossed = |x, y, z| space.cell(region + IVec3::new(x, y, z)).unwrap().crossed();
+        let surface = |x, y, z| space.cell(region + IVec3::new(x, y, z)).unwrap().surface();
+        for (dx, dy, dz) in (0..8).map(|i| (i & 1, (i >> 1) & 1, i >> 2)) {
+            assert_eq!(crossed(2 + dx, 4 + dy, 6 + dz), MIN_CROSSINGS);
+            assert!(surface(dx, dy, dz));
+        }
+        assert_eq!(crossed(4, 4, 6), 0);
+        assert!(!surface(2, 0, 0));
+        // Saved again, it is written with the cells it has now.
+        assert_eq!(space.encode_region(key).unwrap().len(), REGION_CELLS);
     }
 }
