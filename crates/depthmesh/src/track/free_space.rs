@@ -26,9 +26,9 @@
 //! corridor walk (`bench/corridor_walk.py 60`, straight, `simulate --track
 //! --store`) ends with 433 regions (13.9 MB; its peak memory 1.52 GB
 //! against 1.51 with 8 cm cells, its store 281.0 MB against 278.9), and
-//! each checkpoint writes the few dozen its last second of frames changed. The regions are not
-//! bounded like the map's active region: a walk of hundreds of metres
-//! holds them all.
+//! each checkpoint writes the few dozen its last second of frames
+//! changed. The regions are not bounded like the map's active region: a
+//! walk of hundreds of metres holds them all.
 
 use super::pyramid::Level;
 use crate::camera::Pose;
@@ -43,7 +43,7 @@ use std::sync::Arc;
 /// a cell next to a surface is not empty). With 8 cm cells those were the
 /// 16–24 cm above a floor, and a floor with a 25 cm box, followed to a
 /// place where the box stands on bare floor, put 0.73 % of the frame in
-/// space seen empty; with 4 cm, the camera's own poses put at most 0.40 %
+/// space seen empty; with 4 cm, the camera's own poses put at most 0.34 %
 /// of the kitchen's frames there (0.26 % with 8 cm) and that place is
 /// refused (`docs/tracking-experiments.md`, "Finer cells").
 const CELL: f32 = 0.04;
