@@ -176,6 +176,18 @@ fn track_across_jump(
     (dir, out)
 }
 
+/// Column `name` of the run's `stats.csv` in `out`, a field a frame.
+fn stats_column(out: &Path, name: &str) -> Vec<String> {
+    let stats = std::fs::read_to_string(out.join("stats.csv")).unwrap();
+    let mut lines = stats.lines();
+    let header = lines.next().unwrap();
+    let column = header.split(',').position(|c| c == name);
+    let column = column.unwrap_or_else(|| panic!("stats.csv has no {name} column: {header}"));
+    lines
+        .map(|r| r.split(',').nth(column).unwrap_or_default().to_owned())
+        .collect()
+}
+
 /// `reconstruct --track` (2 cm TSDF) of the frames folder `frames` from
 /// its first pose, into `out`.
 fn track_folder(frames: &Path, out: &Path) {
@@ -309,24 +321,12 @@ fn staring_at_a_flat_wall_is_tracked_not_lost() {
     // ...and the run says so, in stats.csv and in the summary: frames that
     // left motions along the wall to the motion model (measured: all 5
     // tracked).
-    let stats = std::fs::read_to_string(out.join("stats.csv")).unwrap();
-    let column = stats
-        .lines()
-        .next()
-        .unwrap()
-        .split(',')
-        .position(|c| c == "weak_directions")
-        .unwrap();
-    let weak = stats
-        .lines()
-        .skip(1)
-        .filter(|l| {
-            l.split(',')
-                .nth(column)
-                .is_some_and(|w| w.parse().is_ok_and(|w: u8| w > 0))
-        })
+    let directions = stats_column(&out, "weak_directions");
+    let weak = directions
+        .iter()
+        .filter(|w| w.parse().is_ok_and(|w: u8| w > 0))
         .count();
-    assert!(weak >= 3, "{stats}");
+    assert!(weak >= 3, "{directions:?}");
     assert_eq!(s["weak_frames"], weak, "{s}");
     let trajectory = std::fs::read_to_string(out.join("trajectory.txt")).unwrap();
     let poses: Vec<Vec<f64>> = trajectory
@@ -596,19 +596,8 @@ fn a_person_walking_into_a_mapped_room_is_followed_and_not_fused() {
     assert!((1..=20).contains(&held), "{held} frames not fused: {s}");
     // Each was held, followed on, not a lost camera, and reads so.
     assert_eq!(s["held_frames"].as_u64(), Some(held), "{s}");
-    let stats = std::fs::read_to_string(out.join("stats.csv")).unwrap();
-    let column = stats
-        .lines()
-        .next()
-        .unwrap()
-        .split(',')
-        .position(|c| c == "held");
-    let column = column.expect("stats.csv has a held column");
-    let rows = stats
-        .lines()
-        .skip(1)
-        .map(|r| r.split(',').nth(column).unwrap());
-    assert_eq!(rows.filter(|&c| c == "1").count() as u64, held);
+    let rows = stats_column(&out, "held");
+    assert_eq!(rows.iter().filter(|&c| c == "1").count() as u64, held);
     let trajectory = std::fs::read_to_string(out.join("trajectory.txt")).unwrap();
     let fused: Vec<u32> = trajectory
         .lines()
