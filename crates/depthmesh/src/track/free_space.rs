@@ -34,6 +34,7 @@ use super::pyramid::Level;
 use crate::camera::Pose;
 use crate::tsdf::KeyMap;
 use glam::{IVec3, Vec3};
+use rayon::prelude::*;
 use std::sync::Arc;
 
 /// Cell size (metres): a few times the depth noise of a Kinect-class
@@ -69,7 +70,7 @@ const STOP_CELLS: f32 = 2.0;
 const CHECK_STRIDE: usize = 2;
 
 /// A cell, in a byte: the rays that crossed it, counted up to
-/// [`MIN_CROSSINGS`] (all that [`FreeSpace::empty`] asks), and whether a
+/// [`MIN_CROSSINGS`] (all that [`Cell::open`] asks), and whether a
 /// ray ended in it.
 #[derive(Clone, Copy, Debug, Default, PartialEq)]
 struct Cell(u8);
@@ -92,9 +93,12 @@ impl Cell {
     }
 
     fn cross(&mut self) {
-        if self.crossed() < MIN_CROSSINGS {
-            self.0 += 1;
-        }
+        self.0 += u8::from(self.crossed() < MIN_CROSSINGS);
+    }
+
+    /// Crossed often enough to count as empty, and no ray ended in it.
+    fn open(self) -> bool {
+        self.crossed() >= MIN_CROSSINGS && !self.surface()
     }
 
     fn end_ray(&mut self) {
@@ -153,48 +157,66 @@ fn split(cell: IVec3) -> (IVec3, usize) {
 }
 
 /// The cells a ray from `start` along the unit vector `direction` crosses
-/// within `length` metres, in order, into `cells` (cleared first): each
-/// cell it passes through once, stepping from cell face to cell face
-/// (Amanatides and Woo's traversal), so a ray that clips a cell's corner
-/// counts it, and no position along the ray is rounded to a cell.
-fn walk(start: Vec3, direction: Vec3, length: f32, cells: &mut Vec<IVec3>) {
-    cells.clear();
-    let mut cell = cell_of(start);
-    // Per axis: the step between cells, the distance along the ray to the
-    // next face, and the distance between faces.
-    let mut step = [0i32; 3];
-    let mut next = [f32::INFINITY; 3];
-    let mut delta = [f32::INFINITY; 3];
-    for axis in 0..3 {
-        let d = direction[axis];
-        if d > 0.0 {
-            step[axis] = 1;
-            next[axis] = ((cell[axis] + 1) as f32 * CELL - start[axis]) / d;
-            delta[axis] = CELL / d;
-        } else if d < 0.0 {
-            step[axis] = -1;
-            next[axis] = (cell[axis] as f32 * CELL - start[axis]) / d;
-            delta[axis] = -CELL / d;
+/// within `length` metres, in order: each cell it passes through once,
+/// stepping from cell face to cell face (Amanatides and Woo's traversal),
+/// so a ray that clips a cell's corner counts it, and no position along
+/// the ray is rounded to a cell.
+struct Walk {
+    /// The cell the ray is in; `None` once past `length`.
+    cell: Option<IVec3>,
+    /// The step between cells along each axis (-1, 0 or 1).
+    step: IVec3,
+    /// The distance along the ray to the next face across each axis.
+    next: Vec3,
+    /// The distance along the ray between faces across each axis.
+    delta: Vec3,
+    length: f32,
+}
+
+impl Walk {
+    fn new(start: Vec3, direction: Vec3, length: f32) -> Walk {
+        let cell = cell_of(start);
+        // An axis the ray runs along never has its face next; its distance
+        // between faces is finite so that, stepped zero times, it stays 0.
+        let (mut step, mut next, mut delta) = (IVec3::ZERO, Vec3::INFINITY, Vec3::ZERO);
+        for axis in 0..3 {
+            let d = direction[axis];
+            if d > 0.0 {
+                step[axis] = 1;
+                next[axis] = ((cell[axis] + 1) as f32 * CELL - start[axis]) / d;
+                delta[axis] = (CELL / d).min(f32::MAX);
+            } else if d < 0.0 {
+                step[axis] = -1;
+                next[axis] = (cell[axis] as f32 * CELL - start[axis]) / d;
+                delta[axis] = (-CELL / d).min(f32::MAX);
+            }
+        }
+        Walk {
+            cell: Some(cell),
+            step,
+            next,
+            delta,
+            length,
         }
     }
-    loop {
-        cells.push(cell);
-        let axis = if next[0] < next[1] {
-            if next[0] < next[2] {
-                0
-            } else {
-                2
-            }
-        } else if next[1] < next[2] {
-            1
-        } else {
-            2
-        };
-        if next[axis] > length {
-            return;
-        }
-        cell[axis] += step[axis];
-        next[axis] += delta[axis];
+}
+
+impl Iterator for Walk {
+    type Item = IVec3;
+
+    fn next(&mut self) -> Option<IVec3> {
+        let cell = self.cell?;
+        // The nearest face (the first axis of a tie), chosen by selects,
+        // not branches: which axis comes next follows no pattern a branch
+        // predictor could learn, and a walk by index kept the distances in
+        // memory.
+        let n = self.next;
+        let x = n.x < n.y && n.x < n.z;
+        let y = !x && n.y < n.z;
+        let crossed = IVec3::new(i32::from(x), i32::from(y), i32::from(!x && !y));
+        self.next = n + self.delta * crossed.as_vec3();
+        self.cell = (n.min_element() <= self.length).then_some(cell + self.step * crossed);
+        Some(cell)
     }
 }
 
@@ -219,8 +241,6 @@ impl FreeSpace {
         );
         self.added += 1;
         let (origin, rotation) = (pose.translation, pose.rotation);
-        // The cells one ray crosses, reused from ray to ray.
-        let mut crossed = Vec::new();
         for v in (v0..h).step_by(RAY_STRIDE) {
             for u in (u0..w).step_by(RAY_STRIDE) {
                 let i = v * w + u;
@@ -237,13 +257,11 @@ impl FreeSpace {
                 let stop = length - STOP_CELLS * CELL / facing;
                 if stop > RAY_START {
                     let world = rotation * direction;
-                    walk(
+                    self.cross(Walk::new(
                         origin + world * RAY_START,
                         world,
                         stop - RAY_START,
-                        &mut crossed,
-                    );
-                    self.cross(&crossed);
+                    ));
                 }
             }
         }
@@ -253,26 +271,23 @@ impl FreeSpace {
     /// the cells in a row that lie in it (a ray crosses tens of cells a
     /// region, and a lookup a cell cost the kitchen's tracking a quarter
     /// of its speed with rays every 8 pixels).
-    fn cross(&mut self, cells: &[IVec3]) {
-        let mut cells = cells.iter().map(|&c| split(c)).peekable();
-        while let Some(&(key, _)) = cells.peek() {
-            let region = self.region_mut(key);
-            while let Some((_, i)) = cells.next_if(|&(k, _)| k == key) {
+    fn cross(&mut self, cells: impl Iterator<Item = IVec3>) {
+        let mut run: Option<(IVec3, &mut [Cell; REGION_CELLS])> = None;
+        for cell in cells {
+            let (key, i) = split(cell);
+            if run.as_ref().is_none_or(|(k, _)| *k != key) {
+                run = Some((key, self.region_mut(key)));
+            }
+            if let Some((_, region)) = run.as_mut() {
                 region[i].cross();
             }
         }
     }
 
-    /// Whether `cell` was crossed often enough, and no view saw a surface
-    /// in it or in the 26 around it (checked only for a crossed cell, which
-    /// a right pose's points rarely fall in).
-    fn empty(&self, cell: IVec3) -> bool {
-        if !self
-            .cell(cell)
-            .is_some_and(|c| c.crossed() >= MIN_CROSSINGS && !c.surface())
-        {
-            return false;
-        }
+    /// Whether no view saw a surface in `cell` or in the 26 around it
+    /// (asked only of an open cell, which a right pose's points rarely
+    /// fall in).
+    fn clear_around(&self, cell: IVec3) -> bool {
         (-1..=1).all(|dz| {
             (-1..=1).all(|dy| {
                 (-1..=1).all(|dx| {
@@ -383,16 +398,37 @@ impl FreeSpace {
         if self.regions.is_empty() || width == 0 {
             return 0.0;
         }
-        let (mut measured, mut inside) = (0usize, 0usize);
-        for row in points.chunks(width).step_by(CHECK_STRIDE) {
-            for &p in row.iter().step_by(CHECK_STRIDE) {
-                if p.z <= 0.0 {
-                    continue;
+        // Rows are counted in parallel: this runs on every followed frame,
+        // between its alignment and its fusion.
+        let (measured, inside) = points
+            .par_chunks(width * CHECK_STRIDE)
+            .map(|rows| {
+                let row = &rows[..width.min(rows.len())];
+                // Neighbouring points mostly lie in the same region: it is
+                // looked up again only when the region changes.
+                let mut region: Option<(IVec3, Option<&[Cell; REGION_CELLS]>)> = None;
+                let (mut measured, mut inside) = (0usize, 0usize);
+                for &p in row.iter().step_by(CHECK_STRIDE) {
+                    if p.z <= 0.0 {
+                        continue;
+                    }
+                    measured += 1;
+                    let cell = cell_of(pose.transform_point(p));
+                    let (key, i) = split(cell);
+                    let cells = match region {
+                        Some((k, cells)) if k == key => cells,
+                        _ => {
+                            region
+                                .insert((key, self.regions.get(&key).map(|r| &*r.cells)))
+                                .1
+                        }
+                    };
+                    let open = cells.is_some_and(|cells| cells[i].open());
+                    inside += usize::from(open && self.clear_around(cell));
                 }
-                measured += 1;
-                inside += usize::from(self.empty(cell_of(pose.transform_point(p))));
-            }
-        }
+                (measured, inside)
+            })
+            .reduce(|| (0, 0), |a, b| (a.0 + b.0, a.1 + b.1));
         inside as f64 / measured.max(1) as f64
     }
 }
@@ -492,7 +528,6 @@ mod tests {
 
     #[test]
     fn a_ray_walks_every_cell_it_passes_through_once_face_to_face() {
-        let mut cells = Vec::new();
         let rays = [
             (Vec3::new(0.01, 0.02, 0.03), Vec3::new(1.0, 0.0, 0.0)),
             (Vec3::new(-0.3, 0.5, -0.07), Vec3::new(0.3, -0.5, 0.8)),
@@ -501,7 +536,7 @@ mod tests {
         for (start, direction) in rays {
             let direction = direction.normalize();
             let length = 1.3;
-            walk(start, direction, length, &mut cells);
+            let cells: Vec<IVec3> = Walk::new(start, direction, length).collect();
             for pair in cells.windows(2) {
                 let d = (pair[1] - pair[0]).abs();
                 assert_eq!(d.x + d.y + d.z, 1, "{pair:?}");
