@@ -219,7 +219,8 @@ pub fn run_scene(args: &SimulateArgs, scene: &Scene, quiet: bool) -> Result<RunS
     if args.dashboard && matches!(args.map, MapKind::Tsdf | MapKind::Planes) {
         bail!("--dashboard shows mesh addition: use it with --map mabdi or --map naive");
     }
-    let poses = args.path.build(scene, args.iterations)?;
+    let timed = args.path.build_timed(scene, args.iterations)?;
+    let poses: Vec<Pose> = timed.iter().map(|(_, pose)| *pose).collect();
     let mut sensor = SimulatedSensor::kinect(args.noise, args.seed);
     let map = map_config(args, &sensor);
     // No frame yet to measure: the far limit bounds the estimate.
@@ -285,7 +286,8 @@ pub fn run_scene(args: &SimulateArgs, scene: &Scene, quiet: bool) -> Result<RunS
     for (i, truth) in poses.iter().enumerate().skip(position) {
         let iteration = i as u32 + 1;
         let start = Instant::now();
-        let frame = sensor.capture(scene, iteration, truth);
+        let mut frame = sensor.capture(scene, iteration, truth);
+        frame.timestamp = timed[i].0;
         sensor_seconds += start.elapsed().as_secs_f64();
         if let Some(saved) = saved.as_mut() {
             saved.write(i + 1, &frame.depth, truth)?;
@@ -335,12 +337,12 @@ pub fn run_scene(args: &SimulateArgs, scene: &Scene, quiet: bool) -> Result<RunS
         summary.insert("tracked_against".into(), args.track_against.name().into());
         // The true poses beside the estimated ones, and how far apart they
         // are over every frame (a lost frame counts at its last good pose).
-        let truth: Vec<(f64, Pose)> = (1..).map(f64::from).zip(poses.iter().copied()).collect();
-        let tum = format_tum(&truth);
+        let truth = &timed;
+        let tum = format_tum(truth);
         write_atomic(&files.path("groundtruth.txt"), |w| {
             w.write_all(tum.as_bytes())
         })?;
-        let e = trajectory_error(&session.estimates(), &truth, 0.0)?;
+        let e = trajectory_error(&session.estimates(), truth, 0.0)?;
         summary.insert("ate_rmse_cm".into(), json!(e.ate_rmse * 100.0));
         summary.insert(
             "ate_rmse_aligned_cm".into(),

@@ -231,7 +231,7 @@ fn open_source(args: &StreamArgs) -> Result<Box<dyn FrameSource>> {
         }
         (None, Some(scene)) => {
             let scene = load_scene(scene, None, false, args.bunny.as_deref())?;
-            let poses = args.path.build(&scene, args.iterations)?;
+            let poses = args.path.build_timed(&scene, args.iterations)?;
             Ok(Box::new(SceneSource {
                 sensor: SimulatedSensor::kinect(args.noise, 0),
                 scene,
@@ -280,7 +280,8 @@ impl FrameSource for DatasetSource {
 struct SceneSource {
     sensor: SimulatedSensor,
     scene: Scene,
-    poses: Vec<Pose>,
+    /// Each frame's time and pose.
+    poses: Vec<(f64, Pose)>,
     next: usize,
 }
 
@@ -294,14 +295,14 @@ impl FrameSource for SceneSource {
     }
 
     fn next_frame(&mut self, raw: &mut RawDepth) -> Option<Result<SourceFrame, String>> {
-        let pose = *self.poses.get(self.next)?;
+        let (timestamp, pose) = *self.poses.get(self.next)?;
         self.next += 1;
         let iteration = self.next as u32;
         let frame = self.sensor.capture(&self.scene, iteration, &pose);
         let done = raw.set_from_metres(&frame.depth, SIMULATED_UNITS_PER_METRE);
         Some(done.map_err(|e| e.to_string()).map(|()| SourceFrame {
             index: u64::from(iteration),
-            timestamp: frame.timestamp,
+            timestamp,
             pose: Some(pose),
         }))
     }

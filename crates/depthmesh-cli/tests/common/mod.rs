@@ -85,7 +85,9 @@ pub fn table_jump_path(dir: &Path) -> (String, usize) {
 
 /// `scenes/SCENE.toml`'s 200-pose helix with the frames `gap` left out
 /// and cut at frame `end`, written to `dir/jump.txt` as a run writes its
-/// poses (6 decimals); the `--path` value and the number of poses.
+/// poses (6 decimals), the poses numbered anew: the camera reads as
+/// carried off between two frames; the `--path` value and the number of
+/// poses.
 #[allow(dead_code)] // not every test file needs it
 pub fn jump_path(
     dir: &Path,
@@ -93,14 +95,39 @@ pub fn jump_path(
     gap: std::ops::Range<usize>,
     end: usize,
 ) -> (String, usize) {
+    gapped_path(dir, scene_name, gap, end, |i, _| i as f64)
+}
+
+/// [`jump_path`] with the helix's own times (1, 2, …) kept: the frames
+/// left out read as frames the sensor dropped while the camera moved on.
+#[allow(dead_code)] // not every test file needs it
+pub fn dropped_path(
+    dir: &Path,
+    scene_name: &str,
+    gap: std::ops::Range<usize>,
+    end: usize,
+) -> (String, usize) {
+    gapped_path(dir, scene_name, gap, end, |_, t| t)
+}
+
+/// The helix of [`jump_path`], each kept pose timed by `time` of its
+/// place in the file and its time on the helix.
+#[allow(dead_code)] // not every test file needs it
+fn gapped_path(
+    dir: &Path,
+    scene_name: &str,
+    gap: std::ops::Range<usize>,
+    end: usize,
+    time: impl Fn(usize, f64) -> f64,
+) -> (String, usize) {
     let helix = depthmesh::sim::PathSpec::Helix
-        .build(&scene(scene_name), 200)
+        .build_timed(&scene(scene_name), 200)
         .unwrap();
     let poses: Vec<_> = helix[..gap.start]
         .iter()
         .chain(&helix[gap.end..end])
         .enumerate()
-        .map(|(i, pose)| (i as f64, *pose))
+        .map(|(i, &(t, pose))| (time(i, t), pose))
         .collect();
     let file = dir.join("jump.txt");
     std::fs::write(&file, depthmesh::trajectory::format_tum(&poses)).unwrap();

@@ -5,6 +5,7 @@ use crate::camera::{Intrinsics, Pose};
 use crate::error::{Error, Result};
 use crate::image::Frame;
 use crate::map::Mapper;
+use crate::track::clock::FrameClock;
 use crate::track::{LostReason, Tracked, Tracker, TrackerConfig, TrackerState};
 use std::time::Instant;
 
@@ -83,6 +84,8 @@ pub struct PoseState {
     pub track_seconds: f64,
     /// Frames tracked.
     pub tracked: usize,
+    /// The frames' timestamps so far.
+    pub clock: FrameClock,
 }
 
 /// Given poses, or a tracker and its count of losses.
@@ -99,6 +102,8 @@ pub(super) struct PoseSource {
     streak: usize,
     pub track_seconds: f64,
     pub tracked: usize,
+    /// Frame intervals between frames, from their timestamps.
+    clock: FrameClock,
 }
 
 impl PoseSource {
@@ -115,6 +120,7 @@ impl PoseSource {
             streak: 0,
             track_seconds: 0.0,
             tracked: 0,
+            clock: FrameClock::default(),
         })
     }
 
@@ -134,6 +140,7 @@ impl PoseSource {
             streak: self.streak,
             track_seconds: self.track_seconds,
             tracked: self.tracked,
+            clock: self.clock,
         })
     }
 
@@ -154,11 +161,13 @@ impl PoseSource {
         self.streak = state.streak;
         self.track_seconds = state.track_seconds;
         self.tracked = state.tracked;
+        self.clock = state.clock;
         Ok(())
     }
 
     /// The pose of `frame` against `map`, the map built so far.
     pub fn decide(&mut self, frame: &Frame, map: &dyn Mapper) -> Result<Decided> {
+        let steps = self.clock.steps(frame.timestamp);
         let Some((config, tracker)) = self.tracking.as_mut() else {
             let pose = frame.pose.ok_or_else(|| {
                 Error::parameter(
@@ -175,7 +184,7 @@ impl PoseSource {
             return Ok(given(start));
         };
         let start = Instant::now();
-        let t = tracker.track(&frame.depth, map);
+        let t = tracker.track_after(&frame.depth, steps, map);
         let ms = start.elapsed().as_secs_f64() * 1e3;
         Ok(self.judge(t, ms))
     }

@@ -93,13 +93,22 @@ impl PathSpec {
     /// path whose camera sits on its target or looks straight up or down
     /// (no image orientation is defined there).
     pub fn build(&self, scene: &Scene, iterations: u32) -> Result<Vec<Pose>> {
+        let timed = self.build_timed(scene, iterations)?;
+        Ok(timed.into_iter().map(|(_, pose)| pose).collect())
+    }
+
+    /// [`PathSpec::build`]'s poses with the time each frame is taken at: a
+    /// TUM file's own timestamps, so that poses the file leaves out read as
+    /// frames the sensor dropped (see [`crate::track::clock`]); the
+    /// iteration (1, 2, …) along a helix or a line.
+    pub fn build_timed(&self, scene: &Scene, iterations: u32) -> Result<Vec<(f64, Pose)>> {
         if iterations == 0 {
             return Err(Error::parameter("iterations", "must be at least 1"));
         }
         let bounds = scene.object_bounds();
         let poses = match self {
-            PathSpec::Helix => helix(bounds, &scene.helix, iterations),
-            PathSpec::Line => {
+            PathSpec::Helix => numbered(helix(bounds, &scene.helix, iterations)),
+            PathSpec::Line => numbered({
                 let (c, e) = (bounds.center(), bounds.extent());
                 let half = 0.5 * (Vec3::new(e.x, 0.0, e.z) + Vec3::splat(scene.helix.margin));
                 let y = scene.helix.height[0];
@@ -109,7 +118,7 @@ impl PathSpec {
                     scene.helix.look_at[0],
                     iterations,
                 )
-            }
+            }),
             PathSpec::Tum(file) => {
                 let poses = read_tum(file)?;
                 if poses.len() < iterations as usize {
@@ -121,16 +130,29 @@ impl PathSpec {
                         ),
                     ));
                 }
+                let poses: Vec<(f64, Pose)> = poses.into_iter().take(iterations as usize).collect();
+                // A frame's time places it on the trajectory written and
+                // tells the tracker how many frames passed since the last.
+                if let Some(i) = (1..poses.len()).find(|&i| {
+                    poses[i].0.partial_cmp(&poses[i - 1].0) != Some(std::cmp::Ordering::Greater)
+                }) {
+                    return Err(Error::format(
+                        file,
+                        format!(
+                            "pose {} at time {} does not come after pose {} at {}: timestamps must increase",
+                            i + 1,
+                            poses[i].0,
+                            i,
+                            poses[i - 1].0
+                        ),
+                    ));
+                }
                 poses
-                    .into_iter()
-                    .take(iterations as usize)
-                    .map(|(_, pose)| pose)
-                    .collect()
             }
         };
         if let Some(i) = poses
             .iter()
-            .position(|p| !(p.rotation.is_finite() && p.translation.is_finite()))
+            .position(|(_, p)| !(p.rotation.is_finite() && p.translation.is_finite()))
         {
             return Err(Error::parameter(
                 "path",
@@ -142,6 +164,11 @@ impl PathSpec {
         }
         Ok(poses)
     }
+}
+
+/// `poses` with their iteration (1, 2, …) as the time they are taken at.
+fn numbered(poses: Vec<Pose>) -> Vec<(f64, Pose)> {
+    (1..).map(f64::from).zip(poses).collect()
 }
 
 #[cfg(test)]
@@ -243,7 +270,7 @@ mod tests {
     }
 
     #[test]
-    fn tum_path_takes_the_first_poses_and_names_a_short_file() {
+    fn tum_path_takes_the_first_poses_and_their_times_and_names_a_bad_file() {
         let dir = std::env::temp_dir().join(format!("depthmesh-sim-path-{}", std::process::id()));
         std::fs::create_dir_all(&dir).unwrap();
         let file = dir.join("traj.txt");
@@ -260,6 +287,31 @@ mod tests {
         assert!(got[2].translation.abs_diff_eq(poses[2].1.translation, 1e-5));
         let e = spec.build(&scene, 5).unwrap_err().to_string();
         assert!(e.contains("traj.txt") && e.contains("4 poses"), "{e}");
+        // The file's times, gaps and all, are the frames'.
+        let gapped = [(0.5, poses[0].1), (0.6, poses[1].1), (1.1, poses[2].1)];
+        std::fs::write(&file, crate::trajectory::format_tum(&gapped)).unwrap();
+        let times: Vec<f64> = spec
+            .build_timed(&scene, 3)
+            .unwrap()
+            .iter()
+            .map(|(t, _)| *t)
+            .collect();
+        assert_eq!(times, [0.5, 0.6, 1.1]);
+        let numbered: Vec<f64> = PathSpec::Helix
+            .build_timed(&scene, 3)
+            .unwrap()
+            .iter()
+            .map(|(t, _)| *t)
+            .collect();
+        assert_eq!(numbered, [1.0, 2.0, 3.0]);
+        // Times that do not increase place no frame: refused, named.
+        let back = [(0.5, poses[0].1), (0.6, poses[1].1), (0.6, poses[2].1)];
+        std::fs::write(&file, crate::trajectory::format_tum(&back)).unwrap();
+        let e = spec.build(&scene, 3).unwrap_err().to_string();
+        assert!(
+            e.contains("traj.txt") && e.contains("pose 3 at time 0.6"),
+            "{e}"
+        );
         std::fs::remove_dir_all(&dir).unwrap();
     }
 

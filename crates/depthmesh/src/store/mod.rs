@@ -38,6 +38,7 @@ use crate::camera::Pose;
 use crate::error::{Error, Result};
 use crate::image::DepthImage;
 use crate::session::{Backend, MapConfig, PoseState, Resumed, SavedMap, Session, SessionConfig};
+use crate::track::clock::FrameClock;
 use crate::track::free_space::FreeSpace;
 use crate::track::TrackerState;
 use crate::tsdf::archive::BlockArchive;
@@ -880,6 +881,7 @@ fn pose_state_json(p: &PoseState) -> Value {
             "last_good": records::pose_array(&t.last_good),
             "velocity": records::pose_array(&t.velocity),
             "lost_streak": t.lost_streak,
+            "since_good": t.since_good,
             "held_streak": t.held_streak,
             "velocity_known": t.velocity_known,
             "fine_first": t.fine_first,
@@ -893,6 +895,7 @@ fn pose_state_json(p: &PoseState) -> Value {
         "streak": p.streak,
         "track_seconds": p.track_seconds,
         "tracked": p.tracked,
+        "clock": {"last": p.clock.last, "interval": p.clock.interval},
     })
 }
 
@@ -908,6 +911,12 @@ fn pose_state_from(v: &Value) -> std::result::Result<PoseState, String> {
             last_good: records::pose_from(&t["last_good"])?,
             velocity: records::pose_from(&t["velocity"])?,
             lost_streak: count(t, "lost_streak")?,
+            // Absent from sessions saved before dropped frames were
+            // counted: each frame since the last good one was one interval.
+            since_good: match &t["since_good"] {
+                Value::Null => count(t, "lost_streak")?,
+                _ => count(t, "since_good")?,
+            },
             // Absent from sessions saved before followed frames were held;
             // present, it must be a count like the others.
             held_streak: match &t["held_streak"] {
@@ -952,6 +961,24 @@ fn pose_state_from(v: &Value) -> std::result::Result<PoseState, String> {
             .as_f64()
             .ok_or("tracking: no track_seconds")?,
         tracked: count(v, "tracked")?,
+        clock: clock_from(&v["clock"])?,
+    })
+}
+
+/// The frames' clock saved with the tracking state; a new one for
+/// sessions saved before it was kept (their next frame counts as the
+/// first).
+fn clock_from(v: &Value) -> std::result::Result<FrameClock, String> {
+    let time = |k: &str| match &v[k] {
+        Value::Null => Ok(None),
+        t => t
+            .as_f64()
+            .map(Some)
+            .ok_or_else(|| format!("tracking: clock {k} {t} is not a number")),
+    };
+    Ok(FrameClock {
+        last: time("last")?,
+        interval: time("interval")?,
     })
 }
 
@@ -1042,4 +1069,72 @@ fn store_error(path: &Path, e: impl Into<redb::Error>) -> Error {
         _ => "",
     };
     Error::format(path, format!("map store: {e}{hint}"))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::camera::Pose;
+
+    /// A tracked session's pose state as a run two frames after a gap
+    /// holds it.
+    fn state() -> PoseState {
+        let mut tracker = TrackerState::moving(
+            Pose::new(glam::Mat3::IDENTITY, glam::Vec3::new(1.0, 0.5, -2.0)),
+            Pose::new(glam::Mat3::IDENTITY, glam::Vec3::new(0.01, 0.0, 0.0)),
+        );
+        tracker.lost_streak = 2;
+        tracker.since_good = 7;
+        tracker.held_streak = 1;
+        PoseState {
+            tracker: Some(tracker),
+            lost: 1,
+            lost_frames: 2,
+            streak: 2,
+            track_seconds: 0.25,
+            tracked: 40,
+            clock: FrameClock {
+                last: Some(41.5),
+                interval: Some(0.5),
+            },
+        }
+    }
+
+    #[test]
+    fn the_tracking_state_comes_back_with_its_clock() {
+        let saved = pose_state_json(&state());
+        assert_eq!(pose_state_from(&saved).unwrap(), state());
+    }
+
+    #[test]
+    fn a_state_saved_before_the_clock_and_gaps_reads_with_one_frame_a_loss() {
+        let mut saved = pose_state_json(&state());
+        saved.as_object_mut().unwrap().remove("clock");
+        saved["tracker"]
+            .as_object_mut()
+            .unwrap()
+            .remove("since_good");
+        let back = pose_state_from(&saved).unwrap();
+        assert_eq!(back.clock, FrameClock::default());
+        assert_eq!(back.tracker.unwrap().since_good, 2);
+    }
+
+    #[test]
+    fn a_malformed_count_or_time_in_the_tracking_state_is_refused_by_name() {
+        for (path, bad) in [
+            (&["tracker", "held_streak"][..], json!("one")),
+            (&["tracker", "since_good"][..], json!(-3)),
+            (&["clock", "interval"][..], json!("fast")),
+        ] {
+            let mut saved = pose_state_json(&state());
+            let mut at = &mut saved;
+            for key in path {
+                at = &mut at[*key];
+            }
+            *at = bad;
+            let e = pose_state_from(&saved).unwrap_err();
+            let name = path.last().unwrap();
+            assert!(e.contains(name), "{name}: {e}");
+        }
+    }
 }

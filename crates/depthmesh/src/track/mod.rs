@@ -5,7 +5,8 @@
 //! three-level pyramid of vertex and normal maps ([`pyramid`]) and aligned
 //! by projective point-to-plane ICP ([`icp`]) against what the map predicts
 //! from the last good pose — any back-end's [`crate::map::Mapper::render_depth`]
-//! — coarse to fine, starting from a constant-velocity guess ([`tracker`]).
+//! — coarse to fine, starting from a constant-velocity guess ([`tracker`])
+//! carried across the frames the sensor dropped ([`clock`]).
 //! Directions the view barely constrains (a floor, a long wall) keep the
 //! guess instead of following the noise ([`degeneracy`]). A frame is lost
 //! only when it contradicts the map: too few matches, a large residual, an
@@ -19,6 +20,7 @@
 //! ([`ferns`]); a pose found is verified against the map before the frame
 //! is fused, and held to the space seen empty as a followed one is.
 
+pub mod clock;
 pub mod degeneracy;
 pub mod ferns;
 pub mod filter;

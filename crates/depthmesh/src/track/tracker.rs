@@ -27,6 +27,8 @@ use std::fmt;
 
 mod search;
 
+use search::MAX_EXTRAPOLATED;
+
 /// Pyramid levels; the coarsest is 1/4 of the full resolution.
 pub const LEVELS: usize = 3;
 
@@ -583,6 +585,9 @@ pub struct TrackerState {
     pub velocity: Pose,
     /// Frames lost since the last good one.
     pub lost_streak: usize,
+    /// Frame intervals from the last good frame to the last frame seen
+    /// (dropped frames count: see [`Tracker::track_after`]).
+    pub since_good: usize,
     /// Frames followed but not fused since the last fused one (see
     /// `Tracker::hold`).
     pub held_streak: usize,
@@ -611,6 +616,7 @@ impl TrackerState {
             last_good,
             velocity,
             lost_streak: 0,
+            since_good: 0,
             held_streak: 0,
             velocity_known: true,
             fine_first: false,
@@ -645,6 +651,9 @@ pub struct Tracker {
     velocity: Pose,
     /// Frames lost since the last good one.
     lost_streak: usize,
+    /// Frame intervals from the last good frame to the frame being
+    /// tracked: the steps of `velocity` that predict it.
+    since_good: usize,
     /// Frames followed but held back from fusion since the last one fused
     /// ([`Tracker::hold`]).
     held_streak: usize,
@@ -698,6 +707,7 @@ impl Tracker {
             last_good: start,
             velocity: Pose::IDENTITY,
             lost_streak: 0,
+            since_good: 0,
             held_streak: 0,
             velocity_known: false,
             fine_first: false,
@@ -713,6 +723,7 @@ impl Tracker {
             last_good: self.last_good,
             velocity: self.velocity,
             lost_streak: self.lost_streak,
+            since_good: self.since_good,
             held_streak: self.held_streak,
             velocity_known: self.velocity_known,
             fine_first: self.fine_first,
@@ -732,6 +743,7 @@ impl Tracker {
         let mut t = Tracker::new(config, intrinsics, state.last_good)?;
         t.velocity = state.velocity;
         t.lost_streak = state.lost_streak;
+        t.since_good = state.since_good;
         t.held_streak = state.held_streak;
         t.velocity_known = state.velocity_known;
         t.fine_first = state.fine_first;
@@ -764,6 +776,20 @@ impl Tracker {
     /// the README lost exactly that frame, and tracking every 20th frame
     /// of the kitchen lost two such frames).
     pub fn track(&mut self, depth: &DepthImage, map: &dyn Mapper) -> Tracked {
+        self.track_after(depth, 1, map)
+    }
+
+    /// [`Tracker::track`] for a frame taken `steps` frame intervals after
+    /// the last one (2 when the sensor dropped one; see
+    /// [`crate::track::clock`]): the motion model predicts it that many
+    /// frames on. Beyond 15 frames (half a second at 30 Hz) the last
+    /// motion says little of where the camera is, and the frame is looked
+    /// for as the first after a loss is.
+    pub fn track_after(&mut self, depth: &DepthImage, steps: usize, map: &dyn Mapper) -> Tracked {
+        self.since_good += steps.max(1);
+        if self.since_good > MAX_EXTRAPOLATED {
+            self.velocity_known = false;
+        }
         self.prepare(depth);
         if self.lost_streak > 0 {
             let (near, up) = self.look_near(map);
@@ -848,8 +874,9 @@ impl Tracker {
     /// Only a frame that kept its course ([`Tracker::kept_its_course`]) is
     /// held; one that did not is lost, as any frame following loses.
     fn hold(&mut self, result: Tracked) -> Tracked {
-        self.velocity = self.last_good.inverse().compose(&result.pose);
+        self.measure_velocity(&result.pose);
         self.last_good = result.pose;
+        self.since_good = 0;
         self.last_conditioning = result.conditioning;
         self.held_streak += 1;
         Tracked {
@@ -870,6 +897,19 @@ impl Tracker {
         followed.deviation <= self.config.verify_distance
     }
 
+    /// Where the motion model puts the frame being tracked, from the last
+    /// good pose: `velocity` once a frame, as many times as frame
+    /// intervals passed when the velocity was measured (frames the sensor
+    /// dropped while the camera moved on).
+    fn predicted(&self) -> Pose {
+        let steps = if self.velocity_known {
+            self.since_good
+        } else {
+            1
+        };
+        (1..steps).fold(self.velocity, |p, _| p.compose(&self.velocity))
+    }
+
     /// The camera model [`Tracker::track_against`] expects the model view in.
     pub fn model_intrinsics(&self) -> Intrinsics {
         self.model_intrinsics
@@ -879,6 +919,7 @@ impl Tracker {
     /// pose with [`Tracker::model_intrinsics`] (no finer view, no
     /// relocalisation: there is no map to ask).
     pub fn track_against(&mut self, depth: &DepthImage, model: &DepthImage) -> Tracked {
+        self.since_good += 1;
         self.prepare(depth);
         let searching = self.lost_streak > 0;
         let result = if !self.model_view(model, self.model_intrinsics) {
@@ -944,7 +985,7 @@ impl Tracker {
     /// after a loss, from the step across it and from no motion
     /// ([`Tracker::start_still`]).
     fn follow(&mut self, map: &dyn Mapper) -> Tracked {
-        let mut result = self.follow_from(map, self.velocity);
+        let mut result = self.follow_from(map, self.predicted());
         // Only before the first keyframe (the start): after the camera is
         // found again, its pose was verified against the map a frame ago,
         // and weighing global registration's poses means describing the map
@@ -1380,12 +1421,21 @@ impl Tracker {
     /// turned about while it was lost, then walked straight on), and a
     /// camera found after a jump did not move at a constant velocity.
     fn motion_across_loss(&self, found: &Tracked) -> Pose {
-        let frames = (self.lost_streak + 1) as f32;
+        let frames = self.since_good.max(1) as f32;
         let step = (found.pose.translation - self.last_good.translation) / frames;
         if step.length() <= self.config.max_jump {
             Pose::new(glam::Mat3::IDENTITY, found.pose.rotation.transpose() * step)
         } else {
             Pose::IDENTITY
+        }
+    }
+
+    /// The velocity measured by a frame at `pose` (camera-to-world): the
+    /// motion from the last good pose, when that was the last frame; across
+    /// dropped frames the camera moved as predicted, and the velocity holds.
+    fn measure_velocity(&mut self, pose: &Pose) {
+        if self.since_good == 1 {
+            self.velocity = self.last_good.inverse().compose(pose);
         }
     }
 
@@ -1400,29 +1450,32 @@ impl Tracker {
             None => {
                 self.last_conditioning = result.conditioning;
                 // A camera found by the search did not move at a constant
-                // velocity: none is measured, and the next frame's start
-                // is guessed below.
-                if !searched {
-                    self.velocity = self.last_good.inverse().compose(&result.pose);
+                // velocity, nor did one found after more frame intervals
+                // than the motion model predicts across: none is measured,
+                // and the next frame's start is guessed from the step
+                // across.
+                let measured = !searched && (self.velocity_known || self.since_good == 1);
+                if measured {
+                    self.measure_velocity(&result.pose);
                     self.velocity_known = true;
-                    // Any frame trusted enough to be fused is a viewpoint
-                    // to search the map from; a keyframe's pose need not
-                    // have half its points matched (a frame turning
-                    // towards unmapped parts has fewer, and those are the
-                    // views a camera coming back shows again).
-                    if result.weak_directions == 0 {
-                        self.keyframes
-                            .learn(&self.frame.levels[LEVELS - 1].depth, &result.pose);
-                    }
-                }
-                if searched {
+                } else {
                     self.velocity = self.motion_across_loss(&result);
                     self.velocity_known = false;
+                }
+                // Any frame trusted enough to be fused is a viewpoint to
+                // search the map from; a keyframe's pose need not have half
+                // its points matched (a frame turning towards unmapped
+                // parts has fewer, and those are the views a camera coming
+                // back shows again).
+                if !searched && result.weak_directions == 0 {
+                    self.keyframes
+                        .learn(&self.frame.levels[LEVELS - 1].depth, &result.pose);
                 }
                 self.free_space
                     .add_view(&self.frame.levels[0], &result.pose);
                 self.last_good = result.pose;
                 self.lost_streak = 0;
+                self.since_good = 0;
                 result.pose
             }
             Some(_) => {

@@ -299,6 +299,34 @@ fn a_camera_that_jumps_is_found_again_within_ten_frames() {
     assert!(found_at < 10, "found after {found_at} frames");
 }
 
+// Frames the sensor drops while the camera moves on (a USB hiccup, a
+// busy machine) leave a gap the motion model spans when told of it: the
+// camera is followed across, not lost and searched for.
+#[test]
+fn a_camera_whose_frames_were_dropped_is_followed_across_the_gap() {
+    let room = scene(ROOM);
+    let k = Intrinsics::from_vertical_fov(320, 240, 60.0);
+    let mut sensor = SimulatedSensor::new(k, 0.4, 6.0, NoiseModel::Kinect, 5).unwrap();
+    // 2° (7 cm) a frame round the room; eight frames dropped after the
+    // 30th (16°, 0.56 m), then on as before.
+    let out: Vec<Pose> = (0..=30).map(|i| around_room(2.0 * i as f32)).collect();
+    let on: Vec<Pose> = (39..50).map(|i| around_room(2.0 * i as f32)).collect();
+    let mut tracker = track_before_jump(&mut sensor, &room, &out, on[0]);
+    let map = SceneMap::new(&room, 0);
+    for (i, pose) in on.iter().enumerate() {
+        let steps = if i == 0 { 9 } else { 1 };
+        let frame = sensor.capture(&room, 100 + i as u32, pose).depth;
+        let t = tracker.track_after(&frame, steps, &map);
+        assert_eq!(t.lost, None, "frame {i}");
+        assert!(
+            !t.relocalised && t.recovered_from.is_none(),
+            "frame {i} was searched for"
+        );
+        let (dt, dr) = error(&t.pose, pose);
+        assert!(dt < 0.01 && dr < 0.5, "frame {i}: {dt} m, {dr}°");
+    }
+}
+
 // Without a measured motion ICP starts from no motion; a first frame
 // beyond its reach is found by global registration against what the
 // start saw, not lost or left where ICP stopped.

@@ -14,7 +14,7 @@ use crate::track::pyramid::half;
 
 /// Frames a lost camera's last motion is extrapolated over, at most (half a
 /// second at 30 Hz); beyond that it says little about where the camera is.
-const MAX_EXTRAPOLATED: usize = 15;
+pub(super) const MAX_EXTRAPOLATED: usize = 15;
 
 /// Keyframe poses closer than this to one already tried (metres, and the
 /// same number in radians) are not tried again in one relocalisation: ICP
@@ -236,7 +236,7 @@ impl Tracker {
     /// loss: first where the last motion would have taken the camera, then
     /// at the last good pose.
     pub(super) fn search_near(&self) -> Tracked {
-        let frames = (self.lost_streak + 1).min(MAX_EXTRAPOLATED);
+        let frames = self.since_good.clamp(1, MAX_EXTRAPOLATED);
         let extrapolated = (0..frames).fold(Pose::IDENTITY, |m, _| m.compose(&self.velocity));
         let moving = self.icp(self.last_good, extrapolated, Search::Recover);
         if moving.lost.is_none() {
