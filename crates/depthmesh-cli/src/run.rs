@@ -55,9 +55,14 @@ pub fn print_summary(summary: &Map<String, Value>, out: &Path, quiet: bool) {
             0.0 => String::new(),
             n => format!(", {n} of them held (followed on past something new in view)"),
         };
+        // So are frames the sensor dropped, which no record stands for.
+        let dropped = match get("dropped_frames") {
+            0.0 => String::new(),
+            n => format!(", {n} dropped by the sensor (its timestamps skip them)"),
+        };
         line += &format!(
             "; tracking lost {} time(s), {} frame(s) not fused ({:.0} % fused){held}, \
-             {} found again in the frame following lost them, {} {WEAK_FRAMES}",
+             {} found again in the frame following lost them, {} {WEAK_FRAMES}{dropped}",
             get("lost"),
             get("lost_frames"),
             100.0 * get("fused_fraction"),

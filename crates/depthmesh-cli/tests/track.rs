@@ -626,6 +626,7 @@ fn frames_dropped_while_the_camera_moves_are_followed_across() {
     track_simulated("table", &out, frames as u32, &["--path", &path]);
     let s = summary(&out);
     assert_eq!(s["lost_frames"], 0);
+    assert_eq!(s["dropped_frames"], 4);
     let e = eval_json(&out.join("trajectory.txt"), &out.join("groundtruth.txt"));
     assert_eq!(e["matched"].as_u64(), Some(frames as u64));
     let worst = e["ate_max_cm"].as_f64().unwrap();

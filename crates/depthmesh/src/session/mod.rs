@@ -464,6 +464,7 @@ impl Session {
         if self.poses.tracking() {
             summary.insert("lost".into(), json!(self.poses.lost));
             summary.insert("lost_frames".into(), json!(self.poses.lost_frames));
+            summary.insert("dropped_frames".into(), json!(self.poses.dropped_frames));
             summary.insert("held_frames".into(), json!(self.tally.held));
             summary.insert("recovered_frames".into(), json!(self.tally.recovered));
             summary.insert("weak_frames".into(), json!(self.weak_frames()));

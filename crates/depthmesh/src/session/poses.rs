@@ -86,6 +86,8 @@ pub struct PoseState {
     pub tracked: usize,
     /// The frames' timestamps so far.
     pub clock: FrameClock,
+    /// Frames the timestamps say the sensor dropped.
+    pub dropped_frames: usize,
 }
 
 /// Given poses, or a tracker and its count of losses.
@@ -104,6 +106,9 @@ pub(super) struct PoseSource {
     pub tracked: usize,
     /// Frame intervals between frames, from their timestamps.
     clock: FrameClock,
+    /// Frames the timestamps say the sensor dropped (a frame several
+    /// intervals after the last: all but one of them).
+    pub dropped_frames: usize,
 }
 
 impl PoseSource {
@@ -121,6 +126,7 @@ impl PoseSource {
             track_seconds: 0.0,
             tracked: 0,
             clock: FrameClock::default(),
+            dropped_frames: 0,
         })
     }
 
@@ -141,6 +147,7 @@ impl PoseSource {
             track_seconds: self.track_seconds,
             tracked: self.tracked,
             clock: self.clock,
+            dropped_frames: self.dropped_frames,
         })
     }
 
@@ -162,12 +169,14 @@ impl PoseSource {
         self.track_seconds = state.track_seconds;
         self.tracked = state.tracked;
         self.clock = state.clock;
+        self.dropped_frames = state.dropped_frames;
         Ok(())
     }
 
     /// The pose of `frame` against `map`, the map built so far.
     pub fn decide(&mut self, frame: &Frame, map: &dyn Mapper) -> Result<Decided> {
         let steps = self.clock.steps(frame.timestamp);
+        self.dropped_frames += steps - 1;
         let Some((config, tracker)) = self.tracking.as_mut() else {
             let pose = frame.pose.ok_or_else(|| {
                 Error::parameter(

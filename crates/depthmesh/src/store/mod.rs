@@ -896,6 +896,7 @@ fn pose_state_json(p: &PoseState) -> Value {
         "track_seconds": p.track_seconds,
         "tracked": p.tracked,
         "clock": {"last": p.clock.last, "interval": p.clock.interval},
+        "dropped_frames": p.dropped_frames,
     })
 }
 
@@ -962,6 +963,11 @@ fn pose_state_from(v: &Value) -> std::result::Result<PoseState, String> {
             .ok_or("tracking: no track_seconds")?,
         tracked: count(v, "tracked")?,
         clock: clock_from(&v["clock"])?,
+        // Absent likewise: no frame was counted dropped.
+        dropped_frames: match &v["dropped_frames"] {
+            Value::Null => 0,
+            _ => count(v, "dropped_frames")?,
+        },
     })
 }
 
@@ -1097,6 +1103,7 @@ mod tests {
                 last: Some(41.5),
                 interval: Some(0.5),
             },
+            dropped_frames: 5,
         }
     }
 
@@ -1110,12 +1117,14 @@ mod tests {
     fn a_state_saved_before_the_clock_and_gaps_reads_with_one_frame_a_loss() {
         let mut saved = pose_state_json(&state());
         saved.as_object_mut().unwrap().remove("clock");
+        saved.as_object_mut().unwrap().remove("dropped_frames");
         saved["tracker"]
             .as_object_mut()
             .unwrap()
             .remove("since_good");
         let back = pose_state_from(&saved).unwrap();
         assert_eq!(back.clock, FrameClock::default());
+        assert_eq!(back.dropped_frames, 0);
         assert_eq!(back.tracker.unwrap().since_good, 2);
     }
 
@@ -1125,6 +1134,7 @@ mod tests {
             (&["tracker", "held_streak"][..], json!("one")),
             (&["tracker", "since_good"][..], json!(-3)),
             (&["clock", "interval"][..], json!("fast")),
+            (&["dropped_frames"][..], json!(1.5)),
         ] {
             let mut saved = pose_state_json(&state());
             let mut at = &mut saved;
