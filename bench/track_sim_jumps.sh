@@ -2,7 +2,10 @@
 # Simulated jumps: each scene's helix of ITERATIONS poses with frames
 # A..B-1 left out, so the camera reappears 0.3-1.5 m from where it was last
 # seen; tracked (`simulate --track --noise kinect --map tsdf`) per noise
-# seed. Prints, per run, the jump, the times tracking was lost, the frames
+# seed. MODE "dropped" keeps the helix's times, so the frames left out read
+# as frames the sensor dropped while the camera moved on (the motion model
+# spans the gap); "carried" numbers the poses anew, so the camera reads as
+# carried off between two frames and must be searched for. Prints, per run, the jump, the times tracking was lost, the frames
 # lost, the frames found again in the frame following lost them, the ATE
 # over every frame (a lost one at its last good pose), and the share of the
 # final map's surface within 2 cm of the scene: what frames fused at a
@@ -10,15 +13,20 @@
 # for the map fused at the true poses with the same noise, the share a
 # tracked run's map is held to.
 #
-# Usage: bench/track_sim_jumps.sh [SCENES] [SEEDS] [GAPS]
+# Usage: bench/track_sim_jumps.sh [SCENES] [SEEDS] [GAPS] [MODE]
 #   defaults "table bunnies room plane_and_box sofa_room chairs", "0 1",
-#   "60:65 100:104 140:145" (A:B, frames A..B-1 left out)
+#   "60:65 100:104 140:145" (A:B, frames A..B-1 left out), "dropped"
 # Needs ../shared beside the repository (or DEPTHMESH_SHARED) for the bunny.
 set -euo pipefail
 cd "$(dirname "$0")/.."
 scenes=${1:-table bunnies room plane_and_box sofa_room chairs}
 seeds=${2:-0 1}
 gaps=${3:-60:65 100:104 140:145}
+mode=${4:-dropped}
+if [[ $mode != dropped && $mode != carried ]]; then
+  echo "error: MODE must be dropped or carried, got \"$mode\"" >&2
+  exit 1
+fi
 iterations=200
 shared=$(realpath -m "${DEPTHMESH_SHARED:-../shared}")
 bunny=$shared/data/stanford-bunny/stanford_bunny.ply
@@ -50,11 +58,14 @@ PY
   for gap in $gaps; do
     a=${gap%:*}
     b=${gap#*:}
-    jump=$(python3 - "$work/truth/groundtruth.txt" "$a" "$b" "$work/path.txt" <<'PY'
+    jump=$(python3 - "$work/truth/groundtruth.txt" "$a" "$b" "$work/path.txt" "$mode" <<'PY'
 import math, sys
 rows = [l for l in open(sys.argv[1]) if l.strip() and not l.startswith('#')]
 a, b = int(sys.argv[2]), int(sys.argv[3])
-open(sys.argv[4], 'w').write(''.join(r for i, r in enumerate(rows) if i < a or i >= b))
+kept = [r for i, r in enumerate(rows) if i < a or i >= b]
+if sys.argv[5] == 'carried':
+    kept = [f"{i + 1} {r.split(maxsplit=1)[1]}" for i, r in enumerate(kept)]
+open(sys.argv[4], 'w').write(''.join(kept))
 pa, pb = ([float(x) for x in rows[i].split()[1:4]] for i in (a - 1, b))
 print(f"{math.dist(pa, pb):.2f}")
 PY
