@@ -895,7 +895,11 @@ fn pose_state_json(p: &PoseState) -> Value {
         "streak": p.streak,
         "track_seconds": p.track_seconds,
         "tracked": p.tracked,
-        "clock": {"last": p.clock.last, "interval": p.clock.interval},
+        "clock": {
+            "last": p.clock.last,
+            "interval": p.clock.interval,
+            "gaps_in_a_row": p.clock.gaps_in_a_row,
+        },
         "dropped_frames": p.dropped_frames,
     })
 }
@@ -985,6 +989,13 @@ fn clock_from(v: &Value) -> std::result::Result<FrameClock, String> {
     Ok(FrameClock {
         last: time("last")?,
         interval: time("interval")?,
+        gaps_in_a_row: match &v["gaps_in_a_row"] {
+            Value::Null => 0,
+            n => n
+                .as_u64()
+                .map(|n| n as usize)
+                .ok_or_else(|| format!("tracking: clock gaps_in_a_row {n} is not a count"))?,
+        },
     })
 }
 
@@ -1102,6 +1113,7 @@ mod tests {
             clock: FrameClock {
                 last: Some(41.5),
                 interval: Some(0.5),
+                gaps_in_a_row: 3,
             },
             dropped_frames: 5,
         }
@@ -1134,6 +1146,7 @@ mod tests {
             (&["tracker", "held_streak"][..], json!("one")),
             (&["tracker", "since_good"][..], json!(-3)),
             (&["clock", "interval"][..], json!("fast")),
+            (&["clock", "gaps_in_a_row"][..], json!(true)),
             (&["dropped_frames"][..], json!(1.5)),
         ] {
             let mut saved = pose_state_json(&state());

@@ -5,7 +5,9 @@
 //! moved one frame's worth while it moved several.
 //!
 //! The interval is learnt from the frames themselves (a Kinect's 30 Hz, a
-//! recording's frame numbers), so timestamps in any unit serve.
+//! recording's frame numbers), so timestamps in any unit serve, and learnt
+//! again when the frames keep coming at a longer one (a sensor switched
+//! to half its rate).
 
 /// A gap counts as this many intervals or more only when it is at least
 /// this much longer than one: timestamps jitter by a few milliseconds, and
@@ -16,6 +18,11 @@ const LONGER: f64 = 1.5;
 /// learnt interval follows a clock that drifts, not one frame's jitter.
 const FOLLOW: f64 = 0.1;
 
+/// Frames in a row read as gaps after which their interval is taken as
+/// the frames' own: a sensor switched to half its rate, or a machine that
+/// keeps only every other frame, drops nothing more.
+const RELEARN: usize = 30;
+
 /// The timestamps seen so far (see the module docs).
 #[derive(Clone, Copy, Debug, Default, PartialEq)]
 pub struct FrameClock {
@@ -23,6 +30,8 @@ pub struct FrameClock {
     pub last: Option<f64>,
     /// The interval between consecutive frames, once two were seen.
     pub interval: Option<f64>,
+    /// Frames in a row read as more than one interval after the last.
+    pub gaps_in_a_row: usize,
 }
 
 impl FrameClock {
@@ -40,15 +49,19 @@ impl FrameClock {
         }
         match self.interval {
             // A shorter interval than the one learnt: the first was a gap.
-            Some(interval) if dt * LONGER > interval => {
+            Some(interval) if dt * LONGER > interval && self.gaps_in_a_row < RELEARN => {
                 let steps = (dt / interval).round().max(1.0);
                 if steps == 1.0 {
                     self.interval = Some(interval + FOLLOW * (dt - interval));
+                    self.gaps_in_a_row = 0;
+                } else {
+                    self.gaps_in_a_row += 1;
                 }
                 steps as usize
             }
             _ => {
                 self.interval = Some(dt);
+                self.gaps_in_a_row = 0;
                 1
             }
         }
@@ -80,6 +93,20 @@ mod tests {
             .collect();
         assert_eq!(steps, [1, 1, 1, 1, 2]);
         assert_eq!(clock.interval, Some(1.0));
+    }
+
+    #[test]
+    fn a_rate_halved_for_good_is_learnt_again() {
+        let mut clock = FrameClock::default();
+        let steps: Vec<usize> = (0..50)
+            .map(|i| clock.steps(if i < 10 { i } else { 2 * i - 10 } as f64))
+            .collect();
+        // Ten frames a unit apart, then every other one for good: read as
+        // one dropped frame each until 30 in a row have said so.
+        assert!(steps[..11].iter().all(|&s| s == 1), "{steps:?}");
+        assert!(steps[11..41].iter().all(|&s| s == 2), "{steps:?}");
+        assert!(steps[41..].iter().all(|&s| s == 1), "{steps:?}");
+        assert_eq!(clock.interval, Some(2.0));
     }
 
     #[test]
