@@ -904,12 +904,23 @@ fn pose_state_json(p: &PoseState) -> Value {
     })
 }
 
+/// Entry `k` of `v` as a count; why not, naming it.
+fn count(v: &Value, k: &str) -> std::result::Result<usize, String> {
+    v[k].as_u64()
+        .map(|n| n as usize)
+        .ok_or_else(|| format!("tracking: no {k}"))
+}
+
+/// Entry `k` of `v` as a count, or `absent` when a state saved before it
+/// was kept has none; present, it must be a count like the others.
+fn count_or(v: &Value, k: &str, absent: usize) -> std::result::Result<usize, String> {
+    match &v[k] {
+        Value::Null => Ok(absent),
+        _ => count(v, k),
+    }
+}
+
 fn pose_state_from(v: &Value) -> std::result::Result<PoseState, String> {
-    let count = |v: &Value, k: &str| {
-        v[k].as_u64()
-            .map(|n| n as usize)
-            .ok_or_else(|| format!("tracking: no {k}"))
-    };
     let tracker = match &v["tracker"] {
         Value::Null => None,
         t => Some(TrackerState {
@@ -918,16 +929,9 @@ fn pose_state_from(v: &Value) -> std::result::Result<PoseState, String> {
             lost_streak: count(t, "lost_streak")?,
             // Absent from sessions saved before dropped frames were
             // counted: each frame since the last good one was one interval.
-            since_good: match &t["since_good"] {
-                Value::Null => count(t, "lost_streak")?,
-                _ => count(t, "since_good")?,
-            },
-            // Absent from sessions saved before followed frames were held;
-            // present, it must be a count like the others.
-            held_streak: match &t["held_streak"] {
-                Value::Null => 0,
-                _ => count(t, "held_streak")?,
-            },
+            since_good: count_or(t, "since_good", count(t, "lost_streak")?)?,
+            // Absent from sessions saved before followed frames were held.
+            held_streak: count_or(t, "held_streak", 0)?,
             velocity_known: t["velocity_known"]
                 .as_bool()
                 .ok_or("tracking: no velocity_known")?,
@@ -968,10 +972,7 @@ fn pose_state_from(v: &Value) -> std::result::Result<PoseState, String> {
         tracked: count(v, "tracked")?,
         clock: clock_from(&v["clock"])?,
         // Absent likewise: no frame was counted dropped.
-        dropped_frames: match &v["dropped_frames"] {
-            Value::Null => 0,
-            _ => count(v, "dropped_frames")?,
-        },
+        dropped_frames: count_or(v, "dropped_frames", 0)?,
     })
 }
 
@@ -989,13 +990,7 @@ fn clock_from(v: &Value) -> std::result::Result<FrameClock, String> {
     Ok(FrameClock {
         last: time("last")?,
         interval: time("interval")?,
-        gaps_in_a_row: match &v["gaps_in_a_row"] {
-            Value::Null => 0,
-            n => n
-                .as_u64()
-                .map(|n| n as usize)
-                .ok_or_else(|| format!("tracking: clock gaps_in_a_row {n} is not a count"))?,
-        },
+        gaps_in_a_row: count_or(v, "gaps_in_a_row", 0)?,
     })
 }
 
