@@ -192,6 +192,35 @@ impl Pose {
         )
     }
 
+    /// The motion that, made `n` times over, is this one: a constant
+    /// velocity measured across `n` frame intervals, one interval's worth.
+    /// The turn is split evenly about its axis, and the step solves
+    /// `(I + R + … + Rⁿ⁻¹) t = translation` for the split turn `R`, so the
+    /// root composed `n` times gives back `self` on a curve as on a line.
+    pub fn root(&self, n: usize) -> Pose {
+        if n <= 1 {
+            return *self;
+        }
+        let turn = Mat3::from_quat(Quat::from_scaled_axis(
+            self.quat().to_scaled_axis() / n as f32,
+        ));
+        let mut sum = Mat3::IDENTITY;
+        let mut power = Mat3::IDENTITY;
+        for _ in 1..n {
+            power = turn * power;
+            sum += power;
+        }
+        // The sum is singular only for a split turn of a whole number of
+        // n-ths of a revolution, far beyond any frame's; the plain share
+        // is the answer as the turn goes to nothing.
+        let step = if sum.determinant().abs() > 1e-6 {
+            sum.inverse() * self.translation
+        } else {
+            self.translation / n as f32
+        };
+        Pose::new(turn, step)
+    }
+
     /// The angle of the rotation in radians (0..=π), accurate for small
     /// angles too (from the quaternion's vector part, not its cosine).
     pub fn rotation_angle(&self) -> f32 {
@@ -235,6 +264,32 @@ mod tests {
         // World up appears as image up (negative camera y).
         let up = pose.inverse().transform_vector(Vec3::Y);
         assert!(up.y < 0.0);
+    }
+
+    #[test]
+    fn a_root_made_n_times_over_gives_the_motion_back() {
+        let motion = Pose::new(
+            Mat3::from_quat(Quat::from_scaled_axis(Vec3::new(0.02, -0.31, 0.05))),
+            Vec3::new(0.12, -0.03, 0.27),
+        );
+        for n in [1, 2, 3, 7, 15] {
+            let root = motion.root(n);
+            let again = (1..n).fold(root, |p, _| p.compose(&root));
+            assert!(
+                (again.translation - motion.translation).length() < 1e-5,
+                "n = {n}"
+            );
+            assert!(
+                again.inverse().compose(&motion).rotation_angle() < 1e-5,
+                "n = {n}"
+            );
+            // An even share of the turn, not a turn put in one step.
+            let share = motion.rotation_angle() / n as f32;
+            assert!((root.rotation_angle() - share).abs() < 1e-5, "n = {n}");
+        }
+        // No turn: the step is the plain share.
+        let line = Pose::new(Mat3::IDENTITY, Vec3::new(0.3, 0.0, -0.6));
+        assert!((line.root(3).translation - Vec3::new(0.1, 0.0, -0.2)).length() < 1e-6);
     }
 
     #[test]

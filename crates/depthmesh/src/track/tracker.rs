@@ -1431,12 +1431,14 @@ impl Tracker {
     }
 
     /// The velocity measured by a frame at `pose` (camera-to-world): the
-    /// motion from the last good pose, when that was the last frame; across
-    /// dropped frames the camera moved as predicted, and the velocity holds.
+    /// motion from the last good pose, one frame interval's share of it
+    /// when the sensor dropped frames in between ([`Pose::root`]). Holding
+    /// the old velocity across such a frame instead left it stale for as
+    /// long as the sensor kept dropping (every other frame, until the
+    /// clock learns the longer interval).
     fn measure_velocity(&mut self, pose: &Pose) {
-        if self.since_good == 1 {
-            self.velocity = self.last_good.inverse().compose(pose);
-        }
+        let moved = self.last_good.inverse().compose(pose);
+        self.velocity = moved.root(self.since_good.max(1));
     }
 
     /// Moves the tracker on by an alignment: to the frame's pose when it

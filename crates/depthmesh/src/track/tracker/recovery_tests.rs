@@ -327,6 +327,42 @@ fn a_camera_whose_frames_were_dropped_is_followed_across_the_gap() {
     }
 }
 
+// A sensor that drops every other frame while the camera speeds up: the
+// motion measured across each two-interval frame is the velocity, split
+// over the intervals, so the next frame is predicted where it is. Holding
+// the velocity measured before the drops predicted each frame 7 cm short.
+#[test]
+fn a_camera_that_speeds_up_while_every_other_frame_is_dropped_is_predicted_at_its_speed() {
+    let room = scene(ROOM);
+    let k = Intrinsics::from_vertical_fov(320, 240, 60.0);
+    let mut sensor = SimulatedSensor::new(k, 0.4, 6.0, NoiseModel::Kinect, 7).unwrap();
+    let map = SceneMap::new(&room, 0);
+    // 2° (7 cm) a frame interval round the room, then 3° (10.5 cm) with
+    // every other frame dropped: 6° between the frames that arrive.
+    let mut tracker = Tracker::new(TrackerConfig::default(), k, around_room(0.0)).unwrap();
+    for i in 1..=20 {
+        let pose = around_room(2.0 * i as f32);
+        let t = tracker.track(&sensor.capture(&room, i, &pose).depth, &map);
+        assert_eq!(t.lost, None, "frame {i}");
+    }
+    for j in 1..=8 {
+        let pose = around_room(40.0 + 6.0 * j as f32);
+        let t = tracker.track_after(&sensor.capture(&room, 20 + j, &pose).depth, 2, &map);
+        assert_eq!(t.lost, None, "frame {j} after the drops began");
+        let (dt, dr) = error(&t.pose, &pose);
+        assert!(dt < 0.01 && dr < 0.5, "frame {j}: {dt} m, {dr}°");
+        // The first is predicted at the old speed; from the second on, at
+        // the speed the first measured.
+        if j >= 2 {
+            assert!(
+                t.deviation < 0.01,
+                "frame {j}: {} m from the prediction",
+                t.deviation
+            );
+        }
+    }
+}
+
 // Without a measured motion ICP starts from no motion; a first frame
 // beyond its reach is found by global registration against what the
 // start saw, not lost or left where ICP stopped.
