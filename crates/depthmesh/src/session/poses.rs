@@ -175,8 +175,6 @@ impl PoseSource {
 
     /// The pose of `frame` against `map`, the map built so far.
     pub fn decide(&mut self, frame: &Frame, map: &dyn Mapper) -> Result<Decided> {
-        let steps = self.clock.steps(frame.timestamp);
-        self.dropped_frames += steps - 1;
         let Some((config, tracker)) = self.tracking.as_mut() else {
             let pose = frame.pose.ok_or_else(|| {
                 Error::parameter(
@@ -186,6 +184,10 @@ impl PoseSource {
             })?;
             return Ok(given(pose));
         };
+        // Only the tracker predicts across dropped frames, and only a
+        // tracked run reports them; the first frame starts the clock.
+        let steps = self.clock.steps(frame.timestamp);
+        self.dropped_frames += steps - 1;
         let Some(tracker) = tracker.as_mut() else {
             // The first frame defines the map's frame: its given pose, or the origin.
             let start = frame.pose.unwrap_or(Pose::IDENTITY);
