@@ -91,7 +91,7 @@ impl Dashboard {
         if scene
             .objects
             .iter()
-            .any(|o| o.present_at(iteration) != o.present_at(self.environment_iteration))
+            .any(|o| o.state_at(iteration) != o.state_at(self.environment_iteration))
         {
             self.environment = scene.world_mesh(iteration).0;
         }

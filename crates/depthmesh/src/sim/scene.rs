@@ -26,6 +26,7 @@
 //! appear_at = 26               # optional: present from this iteration on (iterations are 1-based)
 //! remove_at = 30               # optional: absent from this iteration on
 //! dynamic = { appear_at = 26 } # optional: appear_at/remove_at that apply only in dynamic runs
+//! motion = { by = [1.5, 0.0, 0.0], from = 40, until = 60 }   # optional: moves `by` metres evenly over iterations from..until, then stays
 //! # path = "${bunny}"          # mesh shape only: file path relative to the scene file, or a ${variable} given by the caller
 //! ```
 //!
@@ -98,6 +99,28 @@ pub struct SceneObject {
     pub appear_at: Option<u32>,
     /// First iteration at which the object no longer exists, if ever.
     pub remove_at: Option<u32>,
+    /// How the object moves during the run, if it does.
+    pub motion: Option<Motion>,
+}
+
+/// A straight move of an object: a person walking through the view, a
+/// chair pushed aside.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Motion {
+    /// The whole displacement, metres in world axes.
+    pub by: Vec3,
+    /// The last iteration at the object's placement; the move starts after it.
+    pub from: u32,
+    /// The iteration by which the move is made; the object stays there after.
+    pub until: u32,
+}
+
+impl Motion {
+    /// How far the object has moved from its placement at `iteration`.
+    pub fn offset_at(&self, iteration: u32) -> Vec3 {
+        let done = iteration.clamp(self.from, self.until) - self.from;
+        self.by * (done as f32 / (self.until - self.from) as f32)
+    }
 }
 
 impl SceneObject {
@@ -105,6 +128,14 @@ impl SceneObject {
     pub fn present_at(&self, iteration: u32) -> bool {
         self.appear_at.is_none_or(|a| iteration >= a)
             && self.remove_at.is_none_or(|r| iteration < r)
+    }
+
+    /// Where the object is at `iteration`: its offset from its placement
+    /// when it exists then, `None` when it does not. Two iterations with the
+    /// same state image the same world.
+    pub fn state_at(&self, iteration: u32) -> Option<Vec3> {
+        self.present_at(iteration)
+            .then(|| self.motion.map_or(Vec3::ZERO, |m| m.offset_at(iteration)))
     }
 }
 
@@ -169,14 +200,20 @@ impl Scene {
     }
 
     /// The world at `iteration` (1-based): the merged mesh of the objects
-    /// present then, and the index in [`Scene::objects`] of each triangle's object.
+    /// present then, where they are then, and the index in
+    /// [`Scene::objects`] of each triangle's object.
     pub fn world_mesh(&self, iteration: u32) -> (Mesh, Vec<u32>) {
-        self.merge(|o| o.present_at(iteration))
+        self.merge(|o| o.state_at(iteration))
     }
 
-    /// Every object merged, whenever it exists.
+    /// The state of every object at `iteration` ([`SceneObject::state_at`]).
+    pub fn state_at(&self, iteration: u32) -> Vec<Option<Vec3>> {
+        self.objects.iter().map(|o| o.state_at(iteration)).collect()
+    }
+
+    /// Every object merged, whenever it exists, where it was placed.
     pub fn full_mesh(&self) -> Mesh {
-        self.merge(|_| true).0
+        self.merge(|_| Some(Vec3::ZERO)).0
     }
 
     /// Bounds of the non-floor objects over the whole run (all objects if every one is a floor):
@@ -192,11 +229,21 @@ impl Scene {
         bounds
     }
 
-    fn merge(&self, keep: impl Fn(&SceneObject) -> bool) -> (Mesh, Vec<u32>) {
+    /// The objects `offset` places (moved by the offset), merged.
+    fn merge(&self, offset: impl Fn(&SceneObject) -> Option<Vec3>) -> (Mesh, Vec<u32>) {
         let mut mesh = Mesh::default();
         let mut ids = Vec::new();
-        for (i, object) in self.objects.iter().enumerate().filter(|(_, o)| keep(o)) {
+        for (i, object) in self.objects.iter().enumerate() {
+            let Some(offset) = offset(object) else {
+                continue;
+            };
+            let start = mesh.positions.len();
             mesh.append(&object.mesh);
+            if offset != Vec3::ZERO {
+                mesh.positions[start..]
+                    .iter_mut()
+                    .for_each(|p| *p += offset);
+            }
             ids.resize(mesh.triangle_count(), i as u32);
         }
         (mesh, ids)
@@ -350,6 +397,35 @@ struct ObjectFile {
     appear_at: Option<u32>,
     remove_at: Option<u32>,
     dynamic: Option<Lifetime>,
+    motion: Option<MotionFile>,
+}
+
+#[derive(Clone, Copy, Deserialize)]
+#[serde(deny_unknown_fields)]
+struct MotionFile {
+    by: [f32; 3],
+    from: u32,
+    until: u32,
+}
+
+impl MotionFile {
+    fn check(&self) -> Result<Motion, String> {
+        check_finite("motion.by", &self.by)?;
+        if self.from == 0 {
+            return Err("iterations are 1-based: motion.from starts at 1".into());
+        }
+        if self.from >= self.until {
+            return Err(format!(
+                "motion.from ({}) must come before motion.until ({})",
+                self.from, self.until
+            ));
+        }
+        Ok(Motion {
+            by: Vec3::from(self.by),
+            from: self.from,
+            until: self.until,
+        })
+    }
 }
 
 impl ObjectFile {
@@ -390,6 +466,7 @@ impl ObjectFile {
         dynamic_life
             .check()
             .map_err(|m| format!("{m} (in dynamic runs)"))?;
+        let motion = self.motion.map(|m| m.check()).transpose()?;
 
         let mut mesh = self.local_mesh(source, options)?;
         let [rx, ry, rz] = self.rotation.map(f32::to_radians);
@@ -420,6 +497,7 @@ impl ObjectFile {
             returns: self.returns,
             appear_at: life.appear_at,
             remove_at: life.remove_at,
+            motion,
         })
     }
 
@@ -715,6 +793,43 @@ mod tests {
         assert!(ids.iter().all(|&i| i != 3));
         assert!(ids.contains(&2));
         assert_eq!(ids.len(), mesh.triangle_count());
+        // The ball rolls 0.1 m an iteration from iteration 12 to 17.
+        assert_eq!(ball.state_at(12), Some(Vec3::ZERO));
+        assert!((ball.state_at(15).unwrap().x - 0.3).abs() < 1e-6);
+        assert_eq!(ball.state_at(17), ball.state_at(19));
+    }
+
+    #[test]
+    fn a_moving_object_is_imaged_where_it_has_got_to() {
+        let scene = parse(&with_box(
+            "motion = { by = [2.0, 0.0, -1.0], from = 3, until = 7 }",
+        ))
+        .unwrap();
+        let centre = |iteration| scene.world_mesh(iteration).0.bounds().center();
+        assert_eq!(centre(1), Vec3::ZERO);
+        assert_eq!(centre(3), Vec3::ZERO);
+        assert!((centre(5) - Vec3::new(1.0, 0.0, -0.5)).length() < 1e-5);
+        assert!((centre(7) - Vec3::new(2.0, 0.0, -1.0)).length() < 1e-5);
+        assert_eq!(centre(9), centre(7));
+        // The placement is what the helix goes around, wherever it moves.
+        assert_eq!(scene.object_bounds().center(), Vec3::ZERO);
+        for (motion, says) in [
+            (
+                "by = [1.0, 0.0, 0.0], from = 0, until = 4",
+                "motion.from starts at 1",
+            ),
+            (
+                "by = [1.0, 0.0, 0.0], from = 4, until = 4",
+                "must come before motion.until",
+            ),
+            ("by = [nan, 0.0, 0.0], from = 1, until = 4", "motion.by"),
+            ("by = [1.0, 0.0, 0.0], from = 1", "until"),
+        ] {
+            let e = parse(&with_box(&format!("motion = {{ {motion} }}")))
+                .unwrap_err()
+                .to_string();
+            assert!(e.contains(says) && e.contains("crate"), "{motion}: {e}");
+        }
     }
 
     #[test]

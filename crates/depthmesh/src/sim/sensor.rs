@@ -36,8 +36,9 @@ pub struct SimulatedSensor {
     pub seed: u64,
     rasterizer: Rasterizer,
     target: RenderTarget,
-    /// The world mesh of the objects present, and which objects those are.
-    world: Option<(Vec<bool>, World)>,
+    /// The world mesh of the objects present, and the objects' states
+    /// ([`Scene::state_at`]) it was built for.
+    world: Option<(Vec<Option<glam::Vec3>>, World)>,
 }
 
 /// The world as the sensor images it at one iteration.
@@ -99,13 +100,9 @@ impl SimulatedSensor {
 
     /// The frame the sensor takes at `iteration` (1-based) from `pose`.
     pub fn capture(&mut self, scene: &Scene, iteration: u32, pose: &Pose) -> Frame {
-        let present: Vec<bool> = scene
-            .objects
-            .iter()
-            .map(|o| o.present_at(iteration))
-            .collect();
-        if self.world.as_ref().is_none_or(|(p, _)| *p != present) {
-            self.world = Some((present, World::at(scene, iteration)));
+        let state = scene.state_at(iteration);
+        if self.world.as_ref().is_none_or(|(s, _)| *s != state) {
+            self.world = Some((state, World::at(scene, iteration)));
         }
         let world = &self.world.as_ref().expect("set above").1;
         let mesh = &world.mesh;
