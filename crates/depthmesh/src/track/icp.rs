@@ -783,5 +783,22 @@ mod tests {
         assert!((through.contradicted - 0.25).abs() < 0.05, "{through:?}");
         assert!((through.on_surface - 0.75).abs() < 0.05, "{through:?}");
         assert!((through.overlap - 0.75).abs() < 0.05, "{through:?}");
+        // Seen through the surface, the map is contradicted where it is
+        // not hidden too.
+        assert!(
+            (through.on_unhidden_surface - 0.75).abs() < 0.05,
+            "{through:?}"
+        );
+    }
+
+    #[test]
+    fn something_in_front_of_the_map_hides_it_and_does_not_contradict_it() {
+        // The map's wall at 2 m; the frame sees something 1 m nearer over
+        // the left quarter, and the wall elsewhere.
+        let frame = level(|u, _| if u < 16 { 1.0 } else { 2.0 });
+        let hidden = agreement(&frame, &level(|_, _| 2.0), &Pose::IDENTITY, 0.03);
+        assert!((hidden.on_surface - 0.75).abs() < 0.05, "{hidden:?}");
+        assert!(hidden.on_unhidden_surface > 0.99, "{hidden:?}");
+        assert!((hidden.contradicted - 0.25).abs() < 0.05, "{hidden:?}");
     }
 }
