@@ -558,12 +558,6 @@ pub struct Agreement {
     /// model's surface but farther than the distance from it: seen in
     /// front of it or through it.
     pub contradicted: f64,
-    /// [`Agreement::on_surface`] without the points seen in front of the
-    /// model's surface: where the frame sees the surface the map has, not
-    /// something nearer, whether it sees it where the map does. A point in
-    /// front may be something that moved into view since (a person
-    /// walking past); one seen through the surface cannot be.
-    pub on_unhidden_surface: f64,
     /// RMS distance of the points within the distance (metres).
     pub rms: f64,
 }
@@ -583,56 +577,47 @@ pub fn agreement(frame: &Level, model: &Level, frame_to_model: &Pose, distance: 
         return Agreement::default();
     };
     let max_d2 = distance * distance;
-    let (measured, on_surface, near, in_front, squared) = frame
+    let (measured, on_surface, near, squared) = frame
         .points
         .par_iter()
         .fold(
-            || (0usize, 0usize, 0usize, 0usize, 0.0f64),
-            |(measured, on_surface, near, in_front, squared), &p| {
+            || (0usize, 0usize, 0usize, 0.0f64),
+            |(measured, on_surface, near, squared), &p| {
                 if p.z <= 0.0 {
-                    return (measured, on_surface, near, in_front, squared);
+                    return (measured, on_surface, near, squared);
                 }
                 let q = frame_to_model.transform_point(p);
                 let off = project(&mk, size, q).and_then(|(u, v)| {
                     let i = v * size.0 + u;
                     (model.points[i].z > 0.0).then(|| {
                         let (m, n) = (model.points[i], model.normals[i]);
-                        let d2 = if n == Vec3::ZERO {
+                        if n == Vec3::ZERO {
                             (q - m).length_squared()
                         } else {
                             n.dot(q - m).powi(2)
-                        };
-                        (d2, q.z < m.z)
+                        }
                     })
                 });
                 match off {
-                    Some((d2, _)) if d2 <= max_d2 => (
+                    Some(d2) if d2 <= max_d2 => (
                         measured + 1,
                         on_surface + 1,
                         near + 1,
-                        in_front,
                         squared + f64::from(d2),
                     ),
-                    Some((_, nearer)) => (
-                        measured + 1,
-                        on_surface + 1,
-                        near,
-                        in_front + usize::from(nearer),
-                        squared,
-                    ),
-                    None => (measured + 1, on_surface, near, in_front, squared),
+                    Some(_) => (measured + 1, on_surface + 1, near, squared),
+                    None => (measured + 1, on_surface, near, squared),
                 }
             },
         )
         .reduce(
-            || (0, 0, 0, 0, 0.0),
-            |a, b| (a.0 + b.0, a.1 + b.1, a.2 + b.2, a.3 + b.3, a.4 + b.4),
+            || (0, 0, 0, 0.0),
+            |a, b| (a.0 + b.0, a.1 + b.1, a.2 + b.2, a.3 + b.3),
         );
     Agreement {
         overlap: near as f64 / measured.max(1) as f64,
         on_surface: near as f64 / on_surface.max(1) as f64,
         contradicted: (on_surface - near) as f64 / measured.max(1) as f64,
-        on_unhidden_surface: near as f64 / (on_surface - in_front).max(1) as f64,
         rms: (squared / near.max(1) as f64).sqrt(),
     }
 }
@@ -783,22 +768,5 @@ mod tests {
         assert!((through.contradicted - 0.25).abs() < 0.05, "{through:?}");
         assert!((through.on_surface - 0.75).abs() < 0.05, "{through:?}");
         assert!((through.overlap - 0.75).abs() < 0.05, "{through:?}");
-        // Seen through the surface, the map is contradicted where it is
-        // not hidden too.
-        assert!(
-            (through.on_unhidden_surface - 0.75).abs() < 0.05,
-            "{through:?}"
-        );
-    }
-
-    #[test]
-    fn something_in_front_of_the_map_hides_it_and_does_not_contradict_it() {
-        // The map's wall at 2 m; the frame sees something 1 m nearer over
-        // the left quarter, and the wall elsewhere.
-        let frame = level(|u, _| if u < 16 { 1.0 } else { 2.0 });
-        let hidden = agreement(&frame, &level(|_, _| 2.0), &Pose::IDENTITY, 0.03);
-        assert!((hidden.on_surface - 0.75).abs() < 0.05, "{hidden:?}");
-        assert!(hidden.on_unhidden_surface > 0.99, "{hidden:?}");
-        assert!((hidden.contradicted - 0.25).abs() < 0.05, "{hidden:?}");
     }
 }

@@ -1332,16 +1332,9 @@ impl Tracker {
             // right put at most 0.5 % there (the kitchen's 300, the scenes
             // of the README's tracking table, a random clutter of three
             // seeds).
-            //
-            // The map's surface counts only where the frame sees no nearer
-            // one: a person crossing the view hides it, and counted, the
-            // person read as a contradiction (69 % matched) and lost a
-            // camera that was held right on, for twelve frames. What
-            // stands in front of the surface in space seen empty is the
-            // check after.
             agree = verify();
-            if agree.on_unhidden_surface < self.config.verify_inlier_fraction {
-                lost = Some(LostReason::Contradicted(agree.on_unhidden_surface));
+            if agree.on_surface < self.config.verify_inlier_fraction {
+                lost = Some(LostReason::Contradicted(agree.on_surface));
             } else if let Some(empty) =
                 self.seen_empty(verified_level, &base.compose(&relative), screening)
             {
