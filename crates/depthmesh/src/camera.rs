@@ -192,11 +192,17 @@ impl Pose {
         )
     }
 
+    /// This motion made `n` times over (at least once): a constant velocity
+    /// carried across `n` frame intervals.
+    pub fn power(&self, n: usize) -> Pose {
+        (1..n.max(1)).fold(*self, |p, _| p.compose(self))
+    }
+
     /// The motion that, made `n` times over, is this one: a constant
     /// velocity measured across `n` frame intervals, one interval's worth.
     /// The turn is split evenly about its axis, and the step solves
     /// `(I + R + … + Rⁿ⁻¹) t = translation` for the split turn `R`, so the
-    /// root composed `n` times gives back `self` on a curve as on a line.
+    /// root's [`Pose::power`] of `n` gives back `self` on a curve as on a line.
     pub fn root(&self, n: usize) -> Pose {
         if n <= 1 {
             return *self;
@@ -274,7 +280,7 @@ mod tests {
         );
         for n in [1, 2, 3, 7, 15] {
             let root = motion.root(n);
-            let again = (1..n).fold(root, |p, _| p.compose(&root));
+            let again = root.power(n);
             assert!(
                 (again.translation - motion.translation).length() < 1e-5,
                 "n = {n}"

@@ -907,7 +907,7 @@ impl Tracker {
         } else {
             1
         };
-        (1..steps).fold(self.velocity, |p, _| p.compose(&self.velocity))
+        self.velocity.power(steps)
     }
 
     /// The camera model [`Tracker::track_against`] expects the model view in.

@@ -237,7 +237,7 @@ impl Tracker {
     /// at the last good pose.
     pub(super) fn search_near(&self) -> Tracked {
         let frames = self.since_good.clamp(1, MAX_EXTRAPOLATED);
-        let extrapolated = (0..frames).fold(Pose::IDENTITY, |m, _| m.compose(&self.velocity));
+        let extrapolated = self.velocity.power(frames);
         let moving = self.icp(self.last_good, extrapolated, Search::Recover);
         if moving.lost.is_none() {
             return moving;
