@@ -874,7 +874,8 @@ impl Tracker {
     /// Only a frame that kept its course ([`Tracker::kept_its_course`]) is
     /// held; one that did not is lost, as any frame following loses.
     fn hold(&mut self, result: Tracked) -> Tracked {
-        self.measure_velocity(&result.pose);
+        // The pose is following's, as a fused frame's would be.
+        self.learn_motion(&result, false);
         self.last_good = result.pose;
         self.since_good = 0;
         self.last_conditioning = result.conditioning;
@@ -1413,8 +1414,9 @@ impl Tracker {
         Directions::of(&blocks).or_else(|| Directions::of(eq))
     }
 
-    /// What the frame after `found` (the camera found again) starts from
-    /// ([`Tracker::start_still`]): the camera walked on by the mean step a
+    /// What the frame after `found` (the camera found again, or followed
+    /// after more frame intervals than the motion model predicts across)
+    /// starts from ([`Tracker::start_still`]): the camera walked on by the mean step a
     /// frame since the last good pose, turned no further, if it could make
     /// that step in a frame (the jump bar); else no motion. The turn across
     /// a loss says nothing of the turn to come (the corridor's camera
@@ -1430,15 +1432,26 @@ impl Tracker {
         }
     }
 
-    /// The velocity measured by a frame at `pose` (camera-to-world): the
-    /// motion from the last good pose, one frame interval's share of it
-    /// when the sensor dropped frames in between ([`Pose::root`]). Holding
-    /// the old velocity across such a frame instead left it stale for as
-    /// long as the sensor kept dropping (every other frame, until the
-    /// clock learns the longer interval).
-    fn measure_velocity(&mut self, pose: &Pose) {
-        let moved = self.last_good.inverse().compose(pose);
-        self.velocity = moved.root(self.since_good.max(1));
+    /// What the motion model learns from a frame found at `found` (fused
+    /// or held), before the tracker moves on to it. Followed within the
+    /// frame intervals the model predicts across, the velocity is
+    /// measured: the motion from the last good pose, one interval's share
+    /// of it when the sensor dropped frames in between ([`Pose::root`];
+    /// holding the old velocity across such a frame left it stale for as
+    /// long as the sensor kept dropping). A camera found by the search
+    /// (`searched`) did not move at a constant velocity, nor did one found
+    /// after more intervals than the model predicts across: none is
+    /// measured, and the next frame's start is guessed from the step
+    /// across ([`Tracker::motion_across_loss`]).
+    fn learn_motion(&mut self, found: &Tracked, searched: bool) {
+        if !searched && (self.velocity_known || self.since_good == 1) {
+            let moved = self.last_good.inverse().compose(&found.pose);
+            self.velocity = moved.root(self.since_good.max(1));
+            self.velocity_known = true;
+        } else {
+            self.velocity = self.motion_across_loss(found);
+            self.velocity_known = false;
+        }
     }
 
     /// Moves the tracker on by an alignment: to the frame's pose when it
@@ -1451,19 +1464,7 @@ impl Tracker {
         let pose = match result.lost {
             None => {
                 self.last_conditioning = result.conditioning;
-                // A camera found by the search did not move at a constant
-                // velocity, nor did one found after more frame intervals
-                // than the motion model predicts across: none is measured,
-                // and the next frame's start is guessed from the step
-                // across.
-                let measured = !searched && (self.velocity_known || self.since_good == 1);
-                if measured {
-                    self.measure_velocity(&result.pose);
-                    self.velocity_known = true;
-                } else {
-                    self.velocity = self.motion_across_loss(&result);
-                    self.velocity_known = false;
-                }
+                self.learn_motion(&result, searched);
                 // Any frame trusted enough to be fused is a viewpoint to
                 // search the map from; a keyframe's pose need not have half
                 // its points matched (a frame turning towards unmapped

@@ -82,6 +82,53 @@ fn follows_a_known_motion_within_a_millimetre_and_a_tenth_of_a_degree() {
     }
 }
 
+/// A held frame (followed, not fused: something moved into view) moves
+/// the tracker on to its pose, so the motion model learns from it what it
+/// would from the same frame fused: a velocity measured within the
+/// intervals the model predicts across, the step across beyond them.
+/// Holding once measured one whatever the gap, so a frame held 20
+/// intervals after the last good one taught a mean turn that a fused one
+/// refuses to.
+#[test]
+fn a_held_frame_teaches_the_motion_model_what_a_fused_one_would() {
+    let room = scene(ROOM);
+    let k = Intrinsics::from_vertical_fov(160, 120, 60.0);
+    let mut sensor = SimulatedSensor::new(k, 0.4, 6.0, NoiseModel::None, 0).unwrap();
+    let poses = around_the_table();
+    let (last, now) = (poses[0], poses[4]);
+    let depth = sensor.capture(&room, 0, &now).depth;
+    let step = Pose::from_quat(glam::Quat::from_rotation_y(0.01), Vec3::new(0.01, 0.0, 0.0));
+    // (intervals since the last good frame, velocity known before)
+    for (since_good, velocity_known) in [(1, false), (4, true), (20, false)] {
+        let state = TrackerState {
+            since_good,
+            velocity_known,
+            ..TrackerState::moving(last, step)
+        };
+        let found = Tracked {
+            lost: None,
+            ..Tracked::empty(now)
+        };
+        let mut learnt = Vec::new();
+        for hold in [true, false] {
+            let mut tracker = Tracker::restore(TrackerConfig::default(), k, state.clone()).unwrap();
+            tracker.prepare(&depth);
+            let t = if hold {
+                tracker.hold(found)
+            } else {
+                tracker.conclude(found, false)
+            };
+            assert_eq!(t.held, hold);
+            let s = tracker.state();
+            assert_eq!(s.last_good, now);
+            learnt.push((s.velocity, s.velocity_known));
+        }
+        assert_eq!(learnt[0], learnt[1], "{since_good} intervals on");
+        // Measured within the intervals predicted across, not beyond.
+        assert_eq!(learnt[0].1, since_good <= 4, "{since_good} intervals on");
+    }
+}
+
 /// The model view is rendered from the last pose found, which is itself
 /// off; the frame is aligned to the view, so the pose found must not
 /// carry the view's error: where the view was rendered from is part of
