@@ -4,9 +4,10 @@
 # a live sensor at each rate of RATES (--realtime: the server maps the
 # newest frame and drops what it cannot keep up with), or as fast as the
 # server maps every frame ("max", no --realtime: nothing dropped). The
-# frames' timestamps tell the tracker how many were dropped in between.
-# Prints per run: frames sent, mapped and dropped by the server, the
-# intervals the tracker counted as dropped, frames lost, and the ATE
+# server tells the tracker the times of the frames it drops, which it
+# predicts across. Prints per run: frames sent, mapped and dropped by the
+# server, the frames the run counted as dropped by the sensor (never sent;
+# none from a folder without gaps), frames lost, and the ATE
 # against the folder's poses over the frames mapped and over every frame
 # sent (a dropped or lost frame at the last pose mapped before it, as a
 # live map would show it).
@@ -23,7 +24,7 @@ PY=$("$shared/tools/setup-anchors.sh")
 ate() {
   "$PY" "$shared/tools/trajectory_error.py" "$1" --frames-folder "$data" | tail -1
 }
-printf '%-5s %5s %7s %8s %16s %5s %26s %26s\n' rate sent mapped dropped "tracker counted" lost \
+printf '%-5s %5s %7s %8s %16s %5s %26s %26s\n' rate sent mapped dropped "sensor dropped" lost \
   "ATE mapped, cm (aligned)" "ATE every frame (aligned)"
 for rate in $rates; do
   mode=(--rate "$rate" --realtime)

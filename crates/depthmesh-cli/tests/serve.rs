@@ -142,6 +142,41 @@ fn a_streamed_weak_view_is_counted_as_the_server_counts_it() {
     std::fs::remove_dir_all(dir).unwrap();
 }
 
+/// A tracked live sensor the server cannot keep up with: the frames it
+/// passes over are told to the tracker (predicted across, not read as
+/// frames the sensor dropped), so the run counts no sensor drops and
+/// loses nothing, while the client counts what the server dropped.
+#[test]
+fn a_tracked_live_sensor_counts_the_frames_the_server_passed_over_apart() {
+    let dir = scratch("serve-realtime-tracked");
+    let frames = dir.join("frames");
+    std::fs::create_dir_all(&frames).unwrap();
+    let wall = "[[object]]\nname = \"wall\"\nshape = \"box\"\nsize = [20.0, 20.0, 0.1]\n\
+                [[object]]\nname = \"post\"\nshape = \"box\"\nsize = [0.2, 1.0, 0.2]\n\
+                translation = [0.0, 0.0, -0.5]\nrotation = [0.0, 45.0, 0.0]\n";
+    let wall = Scene::parse(wall, Path::new("wall.toml"), &SceneOptions::default()).unwrap();
+    let poses: Vec<Pose> = (0..40)
+        .map(|i| Pose::new(Mat3::IDENTITY, Vec3::new(0.005 * i as f32, 0.0, -2.0)))
+        .collect();
+    scene_frames_folder(&frames, &wall, &poses);
+    let served = Served::start(&dir.join("server"), &["--voxel", "0.02"]);
+    let out = dir.join("out");
+    let mut args = stream_args(&served, frames.to_str().unwrap(), out.to_str().unwrap());
+    args[7] = "250";
+    args.extend(["--realtime", "--track", "--session", "live"]);
+    ok(&depthmesh(&args));
+    let client = summary(&out);
+    let server = summary(&dir.join("server").join("live"));
+    let count = |s: &Value, k: &str| s[k].as_u64().unwrap();
+    assert_eq!(count(&client, "frames_sent"), 40);
+    assert!(count(&client, "frames_dropped") > 0, "{client}");
+    assert!(count(&client, "frames_mapped") >= 3, "{client}");
+    assert_eq!(count(&client, "frames_lost"), 0, "{client}");
+    assert_eq!(count(&server, "dropped_frames"), 0, "{server}");
+    drop(served);
+    std::fs::remove_dir_all(dir).unwrap();
+}
+
 #[test]
 fn refusals_name_their_reason() {
     let dir = scratch("serve-refusals");

@@ -28,6 +28,9 @@ const HALVED_STATUS_WIDTH: u32 = 320;
 pub enum Job {
     /// Map this frame.
     Frame(FrameMessage),
+    /// A frame taken at this time was dropped to keep up: the tracker
+    /// predicts across it ([`Session::pass`]).
+    Passed(f64),
     /// Send a copy of the current mesh.
     Mesh(oneshot::Sender<Mesh>),
     /// A viewer joined: publish the view now, not at the next frame.
@@ -62,14 +65,18 @@ pub struct Inbox {
 
 impl Inbox {
     /// Queues `job`; with `newest_only`, a frame waiting unmapped is
-    /// replaced and its index returned.
+    /// dropped (its time stays in the queue, [`Job::Passed`]) and its
+    /// index returned.
     pub fn push(&self, job: Job, newest_only: bool) -> Option<u64> {
         let mut queue = self.queue.lock().expect("inbox lock");
         let mut dropped = None;
         if newest_only && matches!(job, Job::Frame(_)) {
-            if let Some(i) = queue.iter().position(|j| matches!(j, Job::Frame(_))) {
-                if let Some(Job::Frame(old)) = queue.remove(i) {
+            for waiting in queue.iter_mut() {
+                if let Job::Frame(old) = waiting {
+                    let timestamp = old.timestamp;
                     dropped = Some(old.index);
+                    *waiting = Job::Passed(timestamp);
+                    break;
                 }
             }
         }
@@ -172,6 +179,7 @@ impl Worker {
                         break;
                     }
                 },
+                Job::Passed(timestamp) => self.session.pass(timestamp),
                 Job::Mesh(reply) => {
                     let _ = reply.send(self.session.mesh().clone());
                 }
@@ -283,4 +291,45 @@ fn encode_jpeg<'a>(image: &StatusImage, out: &'a mut Vec<u8>) -> Option<&'a [u8]
         ColorType::Luma,
         out,
     )
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use depthmesh::codec::Codec;
+
+    fn frame(index: u64) -> Job {
+        Job::Frame(FrameMessage {
+            index,
+            timestamp: index as f64 / 30.0,
+            pose: None,
+            codec: Codec::Raw,
+            payload: Vec::new(),
+        })
+    }
+
+    // A live sensor's frame still waiting when a newer one arrives is
+    // dropped, but its time stays in its place in the queue, for the
+    // tracker to predict across; a recording's frames all wait their turn.
+    #[test]
+    fn a_frame_dropped_for_a_newer_one_leaves_its_time_in_the_queue() {
+        let inbox = Inbox::default();
+        assert_eq!(inbox.push(frame(0), true), None);
+        assert_eq!(inbox.push(Job::Publish, true), None);
+        assert_eq!(inbox.push(frame(1), true), Some(0));
+        assert_eq!(inbox.push(frame(2), true), Some(1));
+        assert_eq!(inbox.waiting_frames(), 1);
+        let popped: Vec<String> = (0..4)
+            .map(|_| match inbox.pop() {
+                Job::Frame(f) => format!("frame {}", f.index),
+                Job::Passed(t) => format!("passed {:.0}", t * 30.0),
+                Job::Publish => "publish".into(),
+                _ => "other".into(),
+            })
+            .collect();
+        assert_eq!(popped, ["passed 0", "publish", "passed 1", "frame 2"]);
+        assert_eq!(inbox.push(frame(3), false), None);
+        assert_eq!(inbox.push(frame(4), false), None);
+        assert_eq!(inbox.waiting_frames(), 2);
+    }
 }

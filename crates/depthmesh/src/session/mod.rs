@@ -310,6 +310,15 @@ impl Session {
         &self.config
     }
 
+    /// A frame taken at `timestamp` that was received but will not be
+    /// pushed (a live server keeping up with its sensor maps the newest
+    /// frame and passes over the ones before): when poses are tracked, the
+    /// frames' clock learns from it, so the next frame is predicted across
+    /// it and counted as passed over, not as dropped by the sensor.
+    pub fn pass(&mut self, timestamp: f64) {
+        self.poses.pass(timestamp);
+    }
+
     /// Tracks (or takes) the frame's pose and fuses the frame unless
     /// tracking lost it. A frame whose image does not match the camera, or
     /// that has no pose when poses are given, is an error naming the frame;

@@ -107,7 +107,8 @@ pub(super) struct PoseSource {
     /// Frame intervals between frames, from their timestamps.
     clock: FrameClock,
     /// Frames the timestamps say the sensor dropped (a frame several
-    /// intervals after the last: all but one of them).
+    /// intervals after the last: all but one of them), at the stream's
+    /// own rate ([`FrameClock::gap`]).
     pub dropped_frames: usize,
 }
 
@@ -173,6 +174,14 @@ impl PoseSource {
         Ok(())
     }
 
+    /// A frame received at `timestamp` and not decided (see
+    /// [`crate::session::Session::pass`]).
+    pub fn pass(&mut self, timestamp: f64) {
+        if self.tracking() {
+            self.dropped_frames += self.clock.pass(timestamp);
+        }
+    }
+
     /// The pose of `frame` against `map`, the map built so far.
     pub fn decide(&mut self, frame: &Frame, map: &dyn Mapper) -> Result<Decided> {
         let Some((config, tracker)) = self.tracking.as_mut() else {
@@ -186,8 +195,8 @@ impl PoseSource {
         };
         // Only the tracker predicts across dropped frames, and only a
         // tracked run reports them; the first frame starts the clock.
-        let steps = self.clock.steps(frame.timestamp);
-        self.dropped_frames += steps - 1;
+        let gap = self.clock.gap(frame.timestamp);
+        self.dropped_frames += gap.dropped;
         let Some(tracker) = tracker.as_mut() else {
             // The first frame defines the map's frame: its given pose, or the origin.
             let start = frame.pose.unwrap_or(Pose::IDENTITY);
@@ -195,7 +204,7 @@ impl PoseSource {
             return Ok(given(start));
         };
         let start = Instant::now();
-        let t = tracker.track_after(&frame.depth, steps, map);
+        let t = tracker.track_after(&frame.depth, gap.steps, map);
         let ms = start.elapsed().as_secs_f64() * 1e3;
         Ok(self.judge(t, ms))
     }

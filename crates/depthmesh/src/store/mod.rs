@@ -899,6 +899,8 @@ fn pose_state_json(p: &PoseState) -> Value {
             "last": p.clock.last,
             "interval": p.clock.interval,
             "gaps_in_a_row": p.clock.gaps_in_a_row,
+            "own_interval": p.clock.own_interval,
+            "passed": p.clock.passed,
         },
         "dropped_frames": p.dropped_frames,
     })
@@ -991,6 +993,8 @@ fn clock_from(v: &Value) -> std::result::Result<FrameClock, String> {
         last: time("last")?,
         interval: time("interval")?,
         gaps_in_a_row: count_or(v, "gaps_in_a_row", 0)?,
+        own_interval: time("own_interval")?,
+        passed: count_or(v, "passed", 0)?,
     })
 }
 
@@ -1109,6 +1113,8 @@ mod tests {
                 last: Some(41.5),
                 interval: Some(0.5),
                 gaps_in_a_row: 3,
+                own_interval: Some(0.25),
+                passed: 2,
             },
             dropped_frames: 5,
         }
@@ -1142,6 +1148,8 @@ mod tests {
             (&["tracker", "since_good"][..], json!(-3)),
             (&["clock", "interval"][..], json!("fast")),
             (&["clock", "gaps_in_a_row"][..], json!(true)),
+            (&["clock", "own_interval"][..], json!("slow")),
+            (&["clock", "passed"][..], json!(-1)),
             (&["dropped_frames"][..], json!(1.5)),
         ] {
             let mut saved = pose_state_json(&state());
