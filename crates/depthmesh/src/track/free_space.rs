@@ -403,33 +403,63 @@ impl FreeSpace {
         let (measured, inside) = points
             .par_chunks(width * CHECK_STRIDE)
             .map(|rows| {
-                let row = &rows[..width.min(rows.len())];
-                // Neighbouring points mostly lie in the same region: it is
-                // looked up again only when the region changes.
-                let mut region: Option<(IVec3, Option<&[Cell; REGION_CELLS]>)> = None;
                 let (mut measured, mut inside) = (0usize, 0usize);
-                for &p in row.iter().step_by(CHECK_STRIDE) {
-                    if p.z <= 0.0 {
-                        continue;
-                    }
+                self.check_row(&rows[..width.min(rows.len())], pose, |_, open| {
                     measured += 1;
-                    let cell = cell_of(pose.transform_point(p));
-                    let (key, i) = split(cell);
-                    let cells = match region {
-                        Some((k, cells)) if k == key => cells,
-                        _ => {
-                            region
-                                .insert((key, self.regions.get(&key).map(|r| &*r.cells)))
-                                .1
-                        }
-                    };
-                    let open = cells.is_some_and(|cells| cells[i].open());
-                    inside += usize::from(open && self.clear_around(cell));
-                }
+                    inside += usize::from(open);
+                });
                 (measured, inside)
             })
             .reduce(|| (0, 0), |a, b| (a.0 + b.0, a.1 + b.1));
         inside as f64 / measured.max(1) as f64
+    }
+
+    /// Calls `inside` with each of the points [`FreeSpace::share_inside`]
+    /// checks that lies in space seen empty, in world coordinates.
+    pub fn points_inside(
+        &self,
+        points: &[Vec3],
+        width: usize,
+        pose: &Pose,
+        mut inside: impl FnMut(Vec3),
+    ) {
+        if self.regions.is_empty() || width == 0 {
+            return;
+        }
+        for rows in points.chunks(width * CHECK_STRIDE) {
+            self.check_row(&rows[..width.min(rows.len())], pose, |world, open| {
+                if open {
+                    inside(world);
+                }
+            });
+        }
+    }
+
+    /// Calls `checked` with every [`CHECK_STRIDE`]th measured point of
+    /// `row` (in world coordinates, by `pose`) and whether it lies in space
+    /// seen empty.
+    fn check_row(&self, row: &[Vec3], pose: &Pose, mut checked: impl FnMut(Vec3, bool)) {
+        // Neighbouring points mostly lie in the same region: it is looked
+        // up again only when the region changes.
+        let mut region: Option<(IVec3, Option<&[Cell; REGION_CELLS]>)> = None;
+        for &p in row.iter().step_by(CHECK_STRIDE) {
+            if p.z <= 0.0 {
+                continue;
+            }
+            let world = pose.transform_point(p);
+            let cell = cell_of(world);
+            let (key, i) = split(cell);
+            let cells = match region {
+                Some((k, cells)) if k == key => cells,
+                _ => {
+                    region
+                        .insert((key, self.regions.get(&key).map(|r| &*r.cells)))
+                        .1
+                }
+            };
+            let open = cells.is_some_and(|cells| cells[i].open());
+            checked(world, open && self.clear_around(cell));
+        }
     }
 }
 

@@ -572,6 +572,21 @@ pub struct Agreement {
 /// centre (a correct pose on 7-Scenes matched 48 % of the frame point to
 /// point, 50 % being the bar then).
 pub fn agreement(frame: &Level, model: &Level, frame_to_model: &Pose, distance: f32) -> Agreement {
+    agreement_beside(frame, model, frame_to_model, distance, |_| false)
+}
+
+/// [`agreement`] without the points in front of the model's surface, beyond
+/// the distance, for which `moved_in` holds (given in the model's camera
+/// coordinates): something nearer than the surface that moved into view
+/// and hides it ([`crate::track::moved_in`]). Such a point is not counted at
+/// all, as if the frame had not measured it.
+pub fn agreement_beside(
+    frame: &Level,
+    model: &Level,
+    frame_to_model: &Pose,
+    distance: f32,
+    moved_in: impl Fn(Vec3) -> bool + Sync,
+) -> Agreement {
     let size = model.size();
     let Some(mk) = model.intrinsics else {
         return Agreement::default();
@@ -591,15 +606,19 @@ pub fn agreement(frame: &Level, model: &Level, frame_to_model: &Pose, distance: 
                     let i = v * size.0 + u;
                     (model.points[i].z > 0.0).then(|| {
                         let (m, n) = (model.points[i], model.normals[i]);
-                        if n == Vec3::ZERO {
+                        let d2 = if n == Vec3::ZERO {
                             (q - m).length_squared()
                         } else {
                             n.dot(q - m).powi(2)
-                        }
+                        };
+                        (d2, q.z < m.z)
                     })
                 });
                 match off {
-                    Some(d2) if d2 <= max_d2 => (
+                    Some((d2, true)) if d2 > max_d2 && moved_in(q) => {
+                        (measured, on_surface, near, squared)
+                    }
+                    Some((d2, _)) if d2 <= max_d2 => (
                         measured + 1,
                         on_surface + 1,
                         near + 1,

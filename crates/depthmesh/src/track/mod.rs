@@ -13,7 +13,9 @@
 //! implausible jump, or points where earlier frames saw empty space
 //! ([`free_space`]) at a pose off the motion's course; it is not fused. A
 //! frame that kept its course but put points there (something moved into
-//! view) is held: followed on, not fused. The camera is then searched for
+//! view) is held: followed on, not fused; the frame after it is not held
+//! to the map's surface where that frame saw something move in and it may
+//! have moved on to ([`moved_in`]). A lost camera is searched for
 //! near its last pose, turned on the spot there, by matching the frame's
 //! local shape to the map's wherever the camera is
 //! ([`global_registration`]), and from the keyframes most like the frame
@@ -27,6 +29,7 @@ pub mod filter;
 pub mod free_space;
 pub mod global_registration;
 pub mod icp;
+pub mod moved_in;
 pub mod pyramid;
 pub mod tracker;
 
