@@ -508,6 +508,22 @@ mod tests {
         assert!(s > 0.3, "{s}");
         // A wall beyond the one seen is behind a surface, not in empty space.
         assert_eq!(share(&free, &wall(3.5), &Pose::IDENTITY), 0.0);
+        // The points counted inside are the ones visited, where the pose
+        // puts them: the nearer wall's, 2 m ahead of the camera.
+        let mut inside = Vec::new();
+        let points = &nearer.levels[0].points;
+        free.points_inside(points, 320, &Pose::IDENTITY, |p| inside.push(p));
+        let checked = points
+            .chunks(320 * CHECK_STRIDE)
+            .map(|rows| rows[..320].iter().step_by(CHECK_STRIDE).count())
+            .sum::<usize>();
+        let counted = share(&free, &nearer, &Pose::IDENTITY) * checked as f64;
+        assert_eq!(inside.len(), counted.round() as usize);
+        assert!(
+            inside.iter().all(|p| (p.z - 2.0).abs() < 1e-3),
+            "{:?}",
+            inside.first()
+        );
     }
 
     #[test]
