@@ -114,19 +114,28 @@ fn a_live_sensor_gets_its_newest_frames_mapped_and_the_dropped_ones_counted() {
     std::fs::remove_dir_all(dir).unwrap();
 }
 
+/// A frames folder in `frames` of a camera 2 m from a 20 m wall (and
+/// `objects`, scene-file text), sliding `step` metres a frame along it for
+/// `count` frames.
+fn sliding_along_a_wall(frames: &Path, objects: &str, count: usize, step: f32) {
+    std::fs::create_dir_all(frames).unwrap();
+    let wall = format!(
+        "[[object]]\nname = \"wall\"\nshape = \"box\"\nsize = [20.0, 20.0, 0.1]\n{objects}"
+    );
+    let wall = Scene::parse(&wall, Path::new("wall.toml"), &SceneOptions::default()).unwrap();
+    let poses: Vec<Pose> = (0..count)
+        .map(|i| Pose::new(Mat3::IDENTITY, Vec3::new(step * i as f32, 0.0, -2.0)))
+        .collect();
+    scene_frames_folder(frames, &wall, &poses);
+}
+
 #[test]
 fn a_streamed_weak_view_is_counted_as_the_server_counts_it() {
     let dir = scratch("serve-weak");
     let frames = dir.join("frames");
-    std::fs::create_dir_all(&frames).unwrap();
     // Sliding along a wall 2 m in front of it: the wall leaves the motion
     // along it to the motion model.
-    let wall = "[[object]]\nname = \"wall\"\nshape = \"box\"\nsize = [20.0, 20.0, 0.1]\n";
-    let wall = Scene::parse(wall, Path::new("wall.toml"), &SceneOptions::default()).unwrap();
-    let poses: Vec<Pose> = (0..6)
-        .map(|i| Pose::new(Mat3::IDENTITY, Vec3::new(0.02 * i as f32, 0.0, -2.0)))
-        .collect();
-    scene_frames_folder(&frames, &wall, &poses);
+    sliding_along_a_wall(&frames, "", 6, 0.02);
     let served = Served::start(&dir.join("server"), &["--voxel", "0.02"]);
     let out = dir.join("out");
     let mut args = stream_args(&served, frames.to_str().unwrap(), out.to_str().unwrap());
@@ -150,15 +159,10 @@ fn a_streamed_weak_view_is_counted_as_the_server_counts_it() {
 fn a_tracked_live_sensor_counts_the_frames_the_server_passed_over_apart() {
     let dir = scratch("serve-realtime-tracked");
     let frames = dir.join("frames");
-    std::fs::create_dir_all(&frames).unwrap();
-    let wall = "[[object]]\nname = \"wall\"\nshape = \"box\"\nsize = [20.0, 20.0, 0.1]\n\
-                [[object]]\nname = \"post\"\nshape = \"box\"\nsize = [0.2, 1.0, 0.2]\n\
+    // A post turned 45° in front of the wall pins the motion along it.
+    let post = "[[object]]\nname = \"post\"\nshape = \"box\"\nsize = [0.2, 1.0, 0.2]\n\
                 translation = [0.0, 0.0, -0.5]\nrotation = [0.0, 45.0, 0.0]\n";
-    let wall = Scene::parse(wall, Path::new("wall.toml"), &SceneOptions::default()).unwrap();
-    let poses: Vec<Pose> = (0..40)
-        .map(|i| Pose::new(Mat3::IDENTITY, Vec3::new(0.005 * i as f32, 0.0, -2.0)))
-        .collect();
-    scene_frames_folder(&frames, &wall, &poses);
+    sliding_along_a_wall(&frames, post, 40, 0.005);
     let served = Served::start(&dir.join("server"), &["--voxel", "0.02"]);
     let out = dir.join("out");
     let mut args = stream_args(&served, frames.to_str().unwrap(), out.to_str().unwrap());
