@@ -19,7 +19,9 @@ mod common;
 
 use common::nats::NatsServer;
 use common::served::{Served, TOKEN};
-use common::{assert_fails_with, depthmesh, ok, scratch, simulated_frames_folder};
+use common::{
+    assert_fails_with, depthmesh, followable_frames_folder, ok, scratch, simulated_frames_folder,
+};
 use depthmesh::mesh::ply::read_ply;
 use std::path::{Path, PathBuf};
 use std::process::{Child, Command, Output, Stdio};
@@ -117,12 +119,13 @@ fn remove_scratch(dir: &Path) {
 }
 
 /// A scratch folder for test `name` with `count` simulated frames of the
-/// table scene in `frames/`, and a nats-server of its own.
-fn setup(name: &str, count: u32) -> (PathBuf, PathBuf, NatsServer) {
+/// table scene in `frames/` (as `write` writes them: a tracker is to
+/// follow [`followable_frames_folder`]'s), and a nats-server of its own.
+fn setup(name: &str, write: fn(&Path, u32), count: u32) -> (PathBuf, PathBuf, NatsServer) {
     let dir = scratch(name);
     let frames = dir.join("frames");
     std::fs::create_dir_all(&frames).unwrap();
-    simulated_frames_folder(&frames, count);
+    write(&frames, count);
     let nats = NatsServer::start(&dir);
     (dir, frames, nats)
 }
@@ -213,7 +216,7 @@ fn status_once_there(url: &str, site: &str) -> Option<serde_json::Value> {
 #[test]
 #[ignore = "needs nats-server: run by .ci/cluster"]
 fn a_worker_killed_halfway_loses_no_frame_and_fuses_none_twice() {
-    let (dir, frames, nats) = setup("cluster-kill", 60);
+    let (dir, frames, nats) = setup("cluster-kill", simulated_frames_folder, 60);
     let url = nats.url.as_str();
     let site = ["--nats", url, "--site", "kill"];
     let worker = |name: &str| {
@@ -295,7 +298,7 @@ fn a_worker_killed_halfway_loses_no_frame_and_fuses_none_twice() {
 #[test]
 #[ignore = "needs nats-server: run by .ci/cluster"]
 fn sensors_published_in_folder_order_give_the_map_reconstruct_makes() {
-    let (dir, frames, nats) = setup("cluster-order", 24);
+    let (dir, frames, nats) = setup("cluster-order", simulated_frames_folder, 24);
     let url = nats.url.as_str();
     let f = frames.to_str().unwrap();
     for (sensor, range) in [("a", "0..12"), ("b", "12..24")] {
@@ -354,7 +357,7 @@ fn sensors_published_in_folder_order_give_the_map_reconstruct_makes() {
 #[test]
 #[ignore = "needs nats-server: run by .ci/cluster"]
 fn a_sensor_without_poses_is_tracked_once_even_when_its_tracker_dies() {
-    let (dir, frames, nats) = setup("cluster-track", 40);
+    let (dir, frames, nats) = setup("cluster-track", followable_frames_folder, 40);
     let url = nats.url.as_str();
     let f = frames.to_str().unwrap();
     let site = ["--nats", url, "--site", "track"];
@@ -557,7 +560,7 @@ fn a_renewal_applied_after_its_keeper_stopped_waiting_does_not_cost_the_lease() 
 #[test]
 #[ignore = "needs nats-server: run by .ci/cluster"]
 fn a_worker_stopped_with_the_bus_gone_gives_up_saying_so() {
-    let (dir, frames, nats) = setup("cluster-bus-gone", 4);
+    let (dir, frames, nats) = setup("cluster-bus-gone", simulated_frames_folder, 4);
     let url = nats.url.clone();
     let log = dir.join("w1.log");
     // Leases longer than the wait below, so that the worker still holds its
@@ -608,7 +611,7 @@ fn a_worker_stopped_with_the_bus_gone_gives_up_saying_so() {
 /// are `w1.log` and `t1.log` there) and the worker's log as it was when
 /// the bus went down.
 fn ride_out_a_restart(name: &str, lease: &str, down: Duration, busy: bool) -> (PathBuf, String) {
-    let (dir, frames, mut nats) = setup(&format!("cluster-{name}"), 40);
+    let (dir, frames, mut nats) = setup(&format!("cluster-{name}"), followable_frames_folder, 40);
     let url = nats.url.clone();
     let site = ["--nats", url.as_str(), "--site", name];
     let w1 = worker(&dir, &site, "w1", lease, &["--checkpoint-every", "4"]);
@@ -682,7 +685,7 @@ fn an_outage_shorter_than_the_leases_keeps_every_shard_and_sensor_where_it_was()
 #[test]
 #[ignore = "needs nats-server: run by .ci/cluster"]
 fn what_a_site_cannot_take_is_refused_saying_what() {
-    let (dir, frames, nats) = setup("cluster-refusals", 2);
+    let (dir, frames, nats) = setup("cluster-refusals", simulated_frames_folder, 2);
     let url = nats.url.as_str();
     let f = frames.to_str().unwrap();
     assert_fails_with(

@@ -228,6 +228,19 @@ pub fn simulated_frames_folder(dir: &Path, frames: u32) {
     scene_frames_folder(dir, &scene, &poses);
 }
 
+/// [`simulated_frames_folder`]'s first `frames` frames along a helix five
+/// times as long: a camera moving 16 cm and 4° a frame, as `simulate
+/// --iterations 200` does, which tracking follows. Along the short helix
+/// it moves 80 cm and 20° a frame, and tracking loses it on most frames,
+/// where a small change to the search changes which frames are posed.
+#[allow(dead_code)] // not every test file needs it
+pub fn followable_frames_folder(dir: &Path, frames: u32) {
+    use depthmesh::sim::PathSpec;
+    let scene = table_scene();
+    let poses = PathSpec::Helix.build(&scene, 5 * frames).unwrap();
+    scene_frames_folder(dir, &scene, &poses[..frames as usize]);
+}
+
 /// A 7-Scenes style frames folder of `scene` seen from `poses`, 160×120, as
 /// [`simulated_frames_folder`].
 #[allow(dead_code)] // not every test file needs it
