@@ -524,6 +524,17 @@ fn a_box_followed_across_a_jump_is_not_fused_on_floor_seen_bare() {
     map_stays_whole_across_jump("plane_and_box", 140..145, "0", 140);
 }
 
+#[test]
+fn a_camera_carried_round_the_chairs_is_found_within_a_frame() {
+    // The chairs' helix with frames 60-64 left out and the rest numbered
+    // anew: the camera is carried 0.90 m (17 degrees) further round the
+    // table between two frames. Neither the turns on the spot nor global
+    // registration found it for 24 frames, while it went on round; looked
+    // for carried round what it looked at, it is found in the frame after
+    // the one that lost it, and every frame is within 10 cm.
+    map_stays_whole_across_jump("chairs", 60..65, "0", 153);
+}
+
 /// [`track_across_jump`], and the map's surface stays within 2 cm of the
 /// scene (but for a two-hundredth of it): nothing was fused at a wrong
 /// place.

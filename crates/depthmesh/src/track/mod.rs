@@ -16,7 +16,8 @@
 //! view) is held: followed on, not fused; the frame after it is not held
 //! to the map's surface where that frame saw something move in and it may
 //! have moved on to ([`moved_in`]). A lost camera is searched for
-//! near its last pose, turned on the spot there, by matching the frame's
+//! near its last pose, turned on the spot there or carried round what it
+//! looked at, by matching the frame's
 //! local shape to the map's wherever the camera is
 //! ([`global_registration`]), and from the keyframes most like the frame
 //! ([`ferns`]); a pose found is verified against the map before the frame

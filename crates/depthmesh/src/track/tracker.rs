@@ -797,8 +797,8 @@ impl Tracker {
         }
         self.prepare(depth);
         if self.lost_streak > 0 {
-            let (near, up) = self.look_near(map);
-            let found = self.search_on(map, near, up);
+            let (near, axes) = self.look_near(map);
+            let found = self.search_on(map, near, axes);
             return self.conclude(found, true);
         }
         // The frame after the camera was found again is first looked for
@@ -814,11 +814,11 @@ impl Tracker {
         // direction that following takes from the motion model.
         let mut looked = None;
         if !self.velocity_known && !self.keyframes.is_empty() {
-            let (near, up) = self.look_near(map);
+            let (near, axes) = self.look_near(map);
             if near.lost.is_none() {
                 return self.conclude(near, false);
             }
-            looked = Some((near, up));
+            looked = Some((near, axes));
         }
         let followed = self.follow(map);
         let held = matches!(followed.lost, Some(LostReason::SeenEmpty(_)))
@@ -843,11 +843,11 @@ impl Tracker {
         };
         // The search goes on from the look near the last pose, if it was
         // taken: following does not change what it finds.
-        let (near, up) = match looked {
+        let (near, axes) = match looked {
             Some(looked) => looked,
             None => self.look_near(map),
         };
-        let found = self.search_on(map, near, up);
+        let found = self.search_on(map, near, axes);
         let iterations = followed.iterations + found.iterations;
         // A frame still lost reads as following lost it: why the search
         // failed too says less than why the camera was lost.

@@ -1,5 +1,6 @@
 //! The search for a lost camera ([`Tracker::track`]): near its last pose,
-//! turned on the spot there, then by global registration against the map's
+//! turned on the spot there or carried round what it looked at, then by
+//! global registration against the map's
 //! surface ([`crate::track::global_registration`]) and from the keyframes
 //! most like the frame ([`crate::track::ferns`]); every candidate is aligned
 //! by ICP and verified against the map before it is taken. Also the
@@ -53,6 +54,49 @@ const TURN_FRAMES: usize = 2;
 /// verification accepts).
 const TURNS_REFINED: usize = 3;
 
+/// After a loss the camera is also looked for carried round what it
+/// looked at, about the vertical through the point that far ahead on its
+/// axis ([`Axes::ahead`]), by multiples of this (degrees) either way, up
+/// to the first that carries it [`ORBIT_CARRY`]: someone scanning an
+/// object or a table walks round it, and a camera carried 0.5–1 m round it
+/// between two frames (10–20° at 3 m) lands where neither the turns on the
+/// spot nor the map's features found it (the chairs: lost for up to 26
+/// frames while the camera went on round).
+const ORBIT_STEP_DEGREES: f32 = 10.0;
+
+/// How far the camera is looked for carried round (metres, the chord):
+/// the jumps a camera is to be found again after. Further round, a
+/// repeating view offers look-alike places: carried up to 60° round a
+/// point 2 m ahead, a camera turned about in a corridor of bays alike was
+/// verified 3 m along it.
+const ORBIT_CARRY: f32 = 1.0;
+
+/// What the search turns a lost camera about, from the map's view from its
+/// last good pose (camera axes).
+#[derive(Clone, Copy, Debug)]
+pub(super) struct Axes {
+    /// The vertical ([`vertical`]).
+    up: glam::Vec3,
+    /// How far ahead the camera looked: the median depth of the middle
+    /// ninth of the view, if it has any.
+    ahead: Option<f32>,
+}
+
+/// The median depth of the middle ninth of `view`, if any is measured.
+fn ahead(view: &crate::track::pyramid::Level) -> Option<f32> {
+    let (w, h) = view.size();
+    let mut depths: Vec<f32> = (h / 3..2 * h / 3)
+        .flat_map(|v| (w / 3..2 * w / 3).map(move |u| v * w + u))
+        .map(|i| view.depth.data[i])
+        .filter(|&d| d > 0.0)
+        .collect();
+    if depths.is_empty() {
+        return None;
+    }
+    let middle = depths.len() / 2;
+    Some(*depths.select_nth_unstable_by(middle, f32::total_cmp).1)
+}
+
 /// The vertical in a view's camera axes, from the view's `normals`: the
 /// mean of those facing within 45° of the image's up (a floor, a table top)
 /// when they are a tenth of the normals, else the image's up. A camera
@@ -85,20 +129,26 @@ impl Tracker {
     /// frame near its last pose ([`Tracker::recover_near`]), and the
     /// vertical of the map's view from there, which the search's turns are
     /// about.
-    pub(super) fn look_near(&mut self, map: &dyn Mapper) -> (Tracked, glam::Vec3) {
+    pub(super) fn look_near(&mut self, map: &dyn Mapper) -> (Tracked, Axes) {
         let near = self.recover_near(map);
         // The model pyramid holds the view from the last good pose that
         // `recover_near` built.
-        (near, vertical(&self.model.levels[0].normals))
+        let view = &self.model.levels[0];
+        let axes = Axes {
+            up: vertical(&view.normals),
+            ahead: ahead(view),
+        };
+        (near, axes)
     }
 
     /// The rest of the search after [`Tracker::look_near`] found `near`:
-    /// turned on the spot about `up`, then relocalised.
-    pub(super) fn search_on(&mut self, map: &dyn Mapper, near: Tracked, up: glam::Vec3) -> Tracked {
+    /// turned on the spot and carried round what it looked at, about
+    /// `axes`, then relocalised.
+    pub(super) fn search_on(&mut self, map: &dyn Mapper, near: Tracked, axes: Axes) -> Tracked {
         let mut result = near;
         if result.lost.is_some() && self.lost_streak <= TURN_FRAMES {
             let before = result.iterations;
-            result = self.recover_turned(up, map);
+            result = self.recover_turned(axes, map);
             result.iterations += before;
         }
         if result.lost.is_some() {
@@ -192,13 +242,22 @@ impl Tracker {
     }
 
     /// After a loss, when the camera is not found near its last pose: the
-    /// camera turned on the spot about `up` (in its axes at the last good
-    /// pose; see [`vertical`]) by each multiple of [`TURN_STEP_DEGREES`],
-    /// screened coarsely, the best [`TURNS_REFINED`] refined: the verified
-    /// pose the map confirms best.
-    fn recover_turned(&mut self, up: glam::Vec3, map: &dyn Mapper) -> Tracked {
+    /// camera turned on the spot about the vertical `axes.up` (in its axes
+    /// at the last good pose; see [`vertical`]) by each multiple of
+    /// [`TURN_STEP_DEGREES`], screened coarsely, the best [`TURNS_REFINED`]
+    /// refined: the verified pose the map confirms best; if none is
+    /// verified, the same for the camera carried round the point
+    /// `axes.ahead` in front of it by each multiple of
+    /// [`ORBIT_STEP_DEGREES`].
+    fn recover_turned(&mut self, axes: Axes, map: &dyn Mapper) -> Tracked {
         let steps = (180.0 / TURN_STEP_DEGREES).round() as usize;
-        let candidates: Vec<Pose> = (1..=steps)
+        // About the vertical through `centre` (camera axes), by `turn`.
+        let last_good = self.last_good;
+        let turned = |centre: glam::Vec3, turn: f32| {
+            let q = glam::Quat::from_axis_angle(axes.up, turn);
+            last_good.compose(&Pose::from_quat(q, centre - q * centre))
+        };
+        let spins: Vec<Pose> = (1..=steps)
             .flat_map(|i| {
                 let turn = (i as f32 * TURN_STEP_DEGREES).to_radians();
                 // Half a turn either way is the same pose.
@@ -206,17 +265,42 @@ impl Tracker {
                     .into_iter()
                     .take(if i == steps { 1 } else { 2 })
             })
-            .map(|turn| {
-                let spin = Pose::from_quat(glam::Quat::from_axis_angle(up, turn), glam::Vec3::ZERO);
-                self.last_good.compose(&spin)
-            })
+            .map(|turn| turned(glam::Vec3::ZERO, turn))
             .collect();
-        // Most turns face what the frame does not show; rendering and
+        let spun = self.screen_and_refine(&spins, map);
+        let Some(ahead) = axes.ahead.filter(|_| spun.lost.is_some()) else {
+            return spun;
+        };
+        // Only when no turn on the spot explains the frame: where the view
+        // repeats (a corridor's bays alike every 3 m), a pose carried round
+        // a point 2 m ahead explained a turned camera's frame as well as
+        // its own turn, 3 m along the corridor.
+        let centre = glam::Vec3::Z * ahead;
+        let step = ORBIT_STEP_DEGREES.to_radians();
+        // Up to the first turn that carries the camera the whole way.
+        let carried_by = |turn: f32| 2.0 * ahead * (turn / 2.0).sin();
+        let turns = (1..).map(|i| i as f32 * step).take_while(|&turn| {
+            turn <= std::f32::consts::PI && carried_by(turn - step) < ORBIT_CARRY
+        });
+        let orbits: Vec<Pose> = turns
+            .flat_map(|turn| [turn, -turn])
+            .map(|turn| turned(centre, turn))
+            .collect();
+        let mut carried = self.screen_and_refine(&orbits, map);
+        carried.iterations += spun.iterations;
+        carried
+    }
+
+    /// Each of `candidates` screened by ICP on the coarsest frame level
+    /// against a view at half the model's resolution, the best
+    /// [`TURNS_REFINED`] refined: the verified pose the map confirms best.
+    fn screen_and_refine(&mut self, candidates: &[Pose], map: &dyn Mapper) -> Tracked {
+        // Most candidates face what the frame does not show; rendering and
         // aligning each in full cost 0.56–0.68 s on a 640×480 frame.
         let screen = half(&self.model_intrinsics);
         let mut iterations = 0;
         let mut screened: Vec<(f64, Pose)> = Vec::with_capacity(candidates.len());
-        for pose in candidates {
+        for &pose in candidates {
             let model = map.render_depth(&screen, &pose);
             if !self.model_view(&model, screen) {
                 continue;
