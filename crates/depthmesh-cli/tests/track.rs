@@ -535,6 +535,19 @@ fn a_camera_carried_round_the_chairs_is_found_within_a_frame() {
     map_stays_whole_across_jump("chairs", 60..65, "0", 153);
 }
 
+#[test]
+fn a_camera_carried_round_the_table_is_found_within_a_frame() {
+    // The table's helix with frames 100-103 left out and the rest numbered
+    // anew: the camera is carried 0.79 m round the table between two
+    // frames. The poses found there pinned the carry round the table only
+    // by the table's sides, whose points hardly move along it, and were
+    // refused as ambiguous: 11 frames were lost. Taken as pinned, the
+    // right pose was still not among the three carried poses refined, and
+    // the camera was found 3 frames later at the table's mirror image, 3 m
+    // off (the table is alike turned half round).
+    map_stays_whole_across_jump("table", 100..104, "0", 155);
+}
+
 /// [`track_across_jump`], and the map's surface stays within 2 cm of the
 /// scene (but for a two-hundredth of it): nothing was fused at a wrong
 /// place.

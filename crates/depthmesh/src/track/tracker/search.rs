@@ -71,6 +71,14 @@ const ORBIT_STEP_DEGREES: f32 = 10.0;
 /// verified 3 m along it.
 const ORBIT_CARRY: f32 = 1.0;
 
+/// How many of the poses carried round ([`ORBIT_STEP_DEGREES`]) are
+/// refined after screening: all of them for a point 2 m or more ahead (at
+/// most 10°, 20° and 30° either way). Screened, the table seen from every
+/// side overlaps its view alike, and the best three were on the wrong
+/// side in three of the six carried jumps of the table; the right pose
+/// was refined from the fourth.
+const ORBITS_REFINED: usize = 6;
+
 /// What the search turns a lost camera about, from the map's view from its
 /// last good pose (camera axes).
 #[derive(Clone, Copy, Debug)]
@@ -248,7 +256,7 @@ impl Tracker {
     /// refined: the verified pose the map confirms best; if none is
     /// verified, the same for the camera carried round the point
     /// `axes.ahead` in front of it by each multiple of
-    /// [`ORBIT_STEP_DEGREES`].
+    /// [`ORBIT_STEP_DEGREES`], the best [`ORBITS_REFINED`] refined.
     fn recover_turned(&mut self, axes: Axes, map: &dyn Mapper) -> Tracked {
         let steps = (180.0 / TURN_STEP_DEGREES).round() as usize;
         // About the vertical through `centre` (camera axes), by `turn`.
@@ -267,7 +275,7 @@ impl Tracker {
             })
             .map(|turn| turned(glam::Vec3::ZERO, turn))
             .collect();
-        let spun = self.screen_and_refine(&spins, map);
+        let spun = self.screen_and_refine(&spins, TURNS_REFINED, map);
         let Some(ahead) = axes.ahead.filter(|_| spun.lost.is_some()) else {
             return spun;
         };
@@ -286,15 +294,20 @@ impl Tracker {
             .flat_map(|turn| [turn, -turn])
             .map(|turn| turned(centre, turn))
             .collect();
-        let mut carried = self.screen_and_refine(&orbits, map);
+        let mut carried = self.screen_and_refine(&orbits, ORBITS_REFINED, map);
         carried.iterations += spun.iterations;
         carried
     }
 
     /// Each of `candidates` screened by ICP on the coarsest frame level
-    /// against a view at half the model's resolution, the best
-    /// [`TURNS_REFINED`] refined: the verified pose the map confirms best.
-    fn screen_and_refine(&mut self, candidates: &[Pose], map: &dyn Mapper) -> Tracked {
+    /// against a view at half the model's resolution, the best `refined`
+    /// refined: the verified pose the map confirms best.
+    fn screen_and_refine(
+        &mut self,
+        candidates: &[Pose],
+        refined: usize,
+        map: &dyn Mapper,
+    ) -> Tracked {
         // Most candidates face what the frame does not show; rendering and
         // aligning each in full cost 0.56–0.68 s on a 640×480 frame.
         let screen = half(&self.model_intrinsics);
@@ -310,7 +323,7 @@ impl Tracker {
             screened.push((agree.overlap, t.pose));
         }
         screened.sort_by(|a, b| b.0.total_cmp(&a.0));
-        let best: Vec<Pose> = screened.iter().take(TURNS_REFINED).map(|s| s.1).collect();
+        let best: Vec<Pose> = screened.iter().take(refined).map(|s| s.1).collect();
         let mut result = self.relocalise_from(&best, &mut Vec::new(), false, map);
         result.iterations += iterations;
         result
