@@ -744,8 +744,8 @@ mod tests {
     fn a_turn_about_a_point_ahead_is_pinned_by_a_surface_there_facing_it() {
         // A board 1 m wide facing the camera 2 m ahead (a table's side),
         // and the camera carried round the vertical through its middle:
-        // the board's points move along its normal, by at most a quarter
-        // of what a row can carry, and nearer the middle by less.
+        // the board's points move along its normal, by |J·v| ≤ 0.18 for a
+        // unit direction at its edges and less nearer its middle.
         let k = Intrinsics::from_vertical_fov(64, 48, 60.0);
         let board = level(|u, _| match ((u as f32 - k.cx) / k.fx * 2.0).abs() < 0.5 {
             true => 2.0,

@@ -99,10 +99,11 @@ const EXTRA_ITERATIONS_GAIN: f64 = 1.25;
 /// to 25 cm in all.
 const EXTRA_ITERATIONS_STEP: f64 = 0.01;
 
-/// A row of the ICP system faces a direction when its component along it
-/// is at least this (the sine of 20°, the association's default largest
-/// angle between normals): a normal tilted off a direction by noise alone
-/// stays below it (see [`TrackerConfig::verify_facing`]).
+/// A row of the ICP system faces a direction when the cosine between its
+/// normal and the way that motion moves its point is at least this (the
+/// sine of 20°, the association's default largest angle between normals):
+/// a normal tilted off a direction by noise alone stays below it (see
+/// [`TrackerConfig::verify_facing`] and [`super::icp::facing_information`]).
 const FACING: f64 = 0.34;
 
 /// Directions with an eigenvalue below this fraction of
