@@ -159,10 +159,15 @@ fn a_streamed_weak_view_is_counted_as_the_server_counts_it() {
 fn a_tracked_live_sensor_counts_the_frames_the_server_passed_over_apart() {
     let dir = scratch("serve-realtime-tracked");
     let frames = dir.join("frames");
-    // A post turned 45° in front of the wall pins the motion along it.
-    let post = "[[object]]\nname = \"post\"\nshape = \"box\"\nsize = [0.2, 1.0, 0.2]\n\
-                translation = [0.0, 0.0, -0.5]\nrotation = [0.0, 45.0, 0.0]\n";
-    sliding_along_a_wall(&frames, post, 40, 0.005);
+    // A post turned 45° in front of the wall pins the motion along it,
+    // and a bar tilted 45° above it the height, which the post's upright
+    // faces leave free: the frames the server maps may be any few of the
+    // 40, the first of them followed with no motion yet measured.
+    let objects = "[[object]]\nname = \"post\"\nshape = \"box\"\nsize = [0.2, 1.0, 0.2]\n\
+                   translation = [0.0, 0.0, -0.5]\nrotation = [0.0, 45.0, 0.0]\n\
+                   [[object]]\nname = \"bar\"\nshape = \"box\"\nsize = [1.0, 0.2, 0.2]\n\
+                   translation = [0.0, 0.65, -0.5]\nrotation = [45.0, 0.0, 0.0]\n";
+    sliding_along_a_wall(&frames, objects, 40, 0.005);
     let served = Served::start(&dir.join("server"), &["--voxel", "0.02"]);
     let out = dir.join("out");
     let mut args = stream_args(&served, frames.to_str().unwrap(), out.to_str().unwrap());
