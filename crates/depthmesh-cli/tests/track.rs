@@ -548,6 +548,20 @@ fn a_camera_carried_round_the_table_is_found_within_a_frame() {
     map_stays_whole_across_jump("table", 100..104, "0", 155);
 }
 
+#[test]
+fn a_camera_carried_round_the_sofa_room_is_found_in_the_jump_frame() {
+    // The sofa room's helix with frames 60-64 left out and the rest
+    // numbered anew: the camera is carried round the room's middle, while
+    // the middle of its view is the sofa, 1.3 m ahead. Every pose carried
+    // round the sofa was contradicted, and 18 frames were lost; carried
+    // round a point twice as far, the camera is found in the jump frame.
+    // The map is not held to the other jumps' 2 cm: over 200 frames,
+    // tracked without a jump, the sofa room's map is 98.5 % within it,
+    // and lost for 18 frames it was 96.5 %, as it is found (96.2 %).
+    let (dir, _) = track_across_jump("sofa_room", 60..65, "0", 155);
+    std::fs::remove_dir_all(dir).unwrap();
+}
+
 /// [`track_across_jump`], and the map's surface stays within 2 cm of the
 /// scene (but for a two-hundredth of it): nothing was fused at a wrong
 /// place.

@@ -71,13 +71,17 @@ const ORBIT_STEP_DEGREES: f32 = 10.0;
 /// verified 3 m along it.
 const ORBIT_CARRY: f32 = 1.0;
 
-/// How many of the poses carried round ([`ORBIT_STEP_DEGREES`]) are
-/// refined after screening: all of them for a point 2 m or more ahead (at
+/// How many of the poses carried round one point ([`ORBIT_STEP_DEGREES`])
+/// are refined after screening: all of them for a point 2 m or more ahead (at
 /// most 10°, 20° and 30° either way). Screened, the table seen from every
 /// side overlaps its view alike (0.62–0.63 for four of six), and with the
 /// best three refined three of the six carried jumps of the table were
 /// not found there; with six, they are.
 const ORBITS_REFINED: usize = 6;
+
+/// The camera is also looked for carried round the point this many times
+/// as far ahead as the one it looked at (see [`ORBIT_STEP_DEGREES`]).
+const ORBIT_FAR_PIVOT: f32 = 2.0;
 
 /// What the search turns a lost camera about, from the map's view from its
 /// last good pose (camera axes).
@@ -255,8 +259,10 @@ impl Tracker {
     /// [`TURN_STEP_DEGREES`], screened coarsely, the best [`TURNS_REFINED`]
     /// refined: the verified pose the map confirms best; if none is
     /// verified, the same for the camera carried round the point
-    /// `axes.ahead` in front of it by each multiple of
-    /// [`ORBIT_STEP_DEGREES`], the best [`ORBITS_REFINED`] refined.
+    /// `axes.ahead` in front of it, and round the point
+    /// [`ORBIT_FAR_PIVOT`] times as far, by each multiple of
+    /// [`ORBIT_STEP_DEGREES`], the best [`ORBITS_REFINED`] about each
+    /// refined.
     fn recover_turned(&mut self, axes: Axes, map: &dyn Mapper) -> Tracked {
         let steps = (180.0 / TURN_STEP_DEGREES).round() as usize;
         // About the vertical through `centre` (camera axes), by `turn`.
@@ -283,19 +289,35 @@ impl Tracker {
         // repeats (a corridor's bays alike every 3 m), a pose carried round
         // a point 2 m ahead explained a turned camera's frame as well as
         // its own turn, 3 m along the corridor.
-        let centre = glam::Vec3::Z * ahead;
+        //
+        // What the camera looked at may not be what it is carried round:
+        // the middle of its view can be a sofa 1.3 m ahead while the camera
+        // walks round the room's middle beyond it (the sofa room carried
+        // 0.5–1 m round: every pose about the sofa contradicted, the camera
+        // lost for 18 and 23 frames). The poses about a point twice as far
+        // are screened apart and refined as many: ranked together, a table
+        // seen from every side screens alike from both, and the right pose
+        // was left out for its mirror image across the table.
         let step = ORBIT_STEP_DEGREES.to_radians();
-        // Up to the first turn that carries the camera the whole way.
-        let carried_by = |turn: f32| 2.0 * ahead * (turn / 2.0).sin();
-        let turns = (1..).map(|i| i as f32 * step).take_while(|&turn| {
-            turn <= std::f32::consts::PI && carried_by(turn - step) < ORBIT_CARRY
-        });
-        let orbits: Vec<Pose> = turns
-            .flat_map(|turn| [turn, -turn])
-            .map(|turn| turned(centre, turn))
-            .collect();
-        let mut carried = self.screen_and_refine(&orbits, ORBITS_REFINED, map);
-        carried.iterations += spun.iterations;
+        let mut best = Vec::new();
+        let mut iterations = spun.iterations;
+        for pivot in [ahead, ORBIT_FAR_PIVOT * ahead] {
+            let centre = glam::Vec3::Z * pivot;
+            // Up to the first turn that carries the camera the whole way.
+            let carried_by = |turn: f32| 2.0 * pivot * (turn / 2.0).sin();
+            let turns = (1..).map(|i| i as f32 * step).take_while(|&turn| {
+                turn <= std::f32::consts::PI && carried_by(turn - step) < ORBIT_CARRY
+            });
+            let orbits: Vec<Pose> = turns
+                .flat_map(|turn| [turn, -turn])
+                .map(|turn| turned(centre, turn))
+                .collect();
+            let (screened, screening) = self.screen(&orbits, ORBITS_REFINED, map);
+            best.extend(screened);
+            iterations += screening;
+        }
+        let mut carried = self.relocalise_from(&best, &mut Vec::new(), false, map);
+        carried.iterations += iterations;
         carried
     }
 
@@ -308,6 +330,17 @@ impl Tracker {
         refined: usize,
         map: &dyn Mapper,
     ) -> Tracked {
+        let (best, iterations) = self.screen(candidates, refined, map);
+        let mut result = self.relocalise_from(&best, &mut Vec::new(), false, map);
+        result.iterations += iterations;
+        result
+    }
+
+    /// The poses ICP on the coarsest frame level, against a view at half
+    /// the model's resolution, brings the best `kept` of `candidates` to
+    /// (by the share of the frame the map explains there), and the
+    /// iterations it took.
+    fn screen(&mut self, candidates: &[Pose], kept: usize, map: &dyn Mapper) -> (Vec<Pose>, usize) {
         // Most candidates face what the frame does not show; rendering and
         // aligning each in full cost 0.56–0.68 s on a 640×480 frame.
         let screen = half(&self.model_intrinsics);
@@ -323,10 +356,10 @@ impl Tracker {
             screened.push((agree.overlap, t.pose));
         }
         screened.sort_by(|a, b| b.0.total_cmp(&a.0));
-        let best: Vec<Pose> = screened.iter().take(refined).map(|s| s.1).collect();
-        let mut result = self.relocalise_from(&best, &mut Vec::new(), false, map);
-        result.iterations += iterations;
-        result
+        (
+            screened.iter().take(kept).map(|s| s.1).collect(),
+            iterations,
+        )
     }
 
     /// ICP against the model view from the last good pose (built) after a
