@@ -1,8 +1,11 @@
 //! Riding out a bus that does not answer for a while (a nats-server
 //! restarting, a network blip): the loop of a worker or a tracker tries
-//! again instead of exiting, for up to [`RIDE_OUT`].
+//! again instead of exiting, for up to [`RIDE_OUT`], and every process
+//! says when its connection drops and when it is back.
 
 use crate::error::{ClusterError, Result};
+use async_nats::Event;
+use std::sync::{Arc, Mutex};
 use std::time::{Duration, Instant};
 
 /// How long a worker or a tracker keeps trying a bus it cannot reach before
@@ -51,5 +54,75 @@ impl Outage {
             }
             Err(e) => Err(e),
         }
+    }
+}
+
+/// What a process says about its connection to the bus.
+///
+/// A request in flight when the bus goes may be answered after it comes
+/// back (the client sends it again once reconnected, and acknowledgements
+/// are awaited for up to 30 s), so a process can ride out an outage with no
+/// request failing and [`Outage`] saying nothing. The client's own events
+/// tell every drop and every return of the connection, whatever the
+/// process was doing.
+#[derive(Clone, Debug)]
+pub struct ConnectionLog {
+    url: String,
+    /// When the connection dropped, while it is down.
+    lost: Arc<Mutex<Option<Instant>>>,
+}
+
+impl ConnectionLog {
+    /// A log of the connection to the bus at `url`.
+    pub fn new(url: &str) -> Self {
+        ConnectionLog {
+            url: url.to_string(),
+            lost: Arc::default(),
+        }
+    }
+
+    /// What to say about `event`, if anything: a drop, and a return after
+    /// one (not the first connection), with how long it was down.
+    pub fn on(&self, event: &Event) -> Option<String> {
+        let mut lost = self.lost.lock().expect("connection log lock");
+        match event {
+            Event::Disconnected => {
+                lost.get_or_insert_with(Instant::now);
+                Some(format!(
+                    "the connection to the bus at {} dropped; reconnecting",
+                    self.url
+                ))
+            }
+            Event::Connected => lost.take().map(|since| {
+                format!(
+                    "connected to the bus at {} again after {:.1} s",
+                    self.url,
+                    since.elapsed().as_secs_f64()
+                )
+            }),
+            _ => None,
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn a_connection_log_tells_drops_and_returns_not_the_first_connection() {
+        let log = ConnectionLog::new("nats://127.0.0.1:4222");
+        assert_eq!(log.on(&Event::Connected), None);
+        let dropped = log.on(&Event::Disconnected).unwrap();
+        assert!(dropped.contains("127.0.0.1:4222 dropped"), "{dropped}");
+        // A second drop while down (a failed reconnect) keeps the first time.
+        log.on(&Event::Disconnected);
+        let back = log.on(&Event::Connected).unwrap();
+        assert!(
+            back.starts_with("connected to the bus at nats://127.0.0.1:4222 again after 0.0 s"),
+            "{back}"
+        );
+        assert_eq!(log.on(&Event::Connected), None);
+        assert_eq!(log.on(&Event::Closed), None);
     }
 }

@@ -12,6 +12,7 @@
 //! store compresses them).
 
 use crate::error::{ClusterError, Result};
+use crate::outage::ConnectionLog;
 use async_nats::jetstream::{self, kv, object_store, stream};
 use depthmesh::session::{MapConfig, TsdfSettings};
 use depthmesh::tsdf::regions::Regions;
@@ -405,9 +406,20 @@ pub async fn live_entries(store: &kv::Store) -> Result<Vec<(String, bytes::Bytes
 /// (a status over a network link, or a worker balancing, waited that long).
 const READS_AT_ONCE: usize = 16;
 
-/// A JetStream context on the bus at `url`.
+/// A JetStream context on the bus at `url`; the connection's drops and
+/// returns are said on stderr.
 async fn bus(url: &str) -> Result<jetstream::Context> {
-    async_nats::connect(url)
+    let log = ConnectionLog::new(url);
+    async_nats::ConnectOptions::new()
+        .event_callback(move |event| {
+            let said = log.on(&event);
+            async move {
+                if let Some(said) = said {
+                    eprintln!("{said}");
+                }
+            }
+        })
+        .connect(url)
         .await
         .map(jetstream::new)
         .map_err(|e| ClusterError::bus(&format!("cannot connect to {url}"), e))
