@@ -1244,13 +1244,26 @@ impl Tracker {
             }
         }
         // What the view leaves weak at the pose found goes back to the
-        // prediction, if there is one: without a measured motion (the
-        // first frame) "no motion" is a guess, not a prediction.
+        // prediction, if there is one. Without a measured motion "no
+        // motion" is a guess, not a prediction, but at the start of a run
+        // it is where the frame before was taken from, and along what the
+        // view barely pins, ICP from it follows the few rows at the edges
+        // of what pins the rest: a camera slid 2.5–4 cm along a wall, a
+        // post in front of it pinning all but the height, was fused 19–23
+        // cm up the wall, nothing reported. So there what the view leaves
+        // weak stays at the guess too, unless ICP left free went further
+        // from it than a frame is followed ([`TrackerConfig::max_jump`]):
+        // that frame is lost as before, not fused beside the guess with
+        // what pinned it out of view.
         let directions = self.weighed_directions(&eq, &relative, &assoc, recovering);
         let (weak_conditioning, motion_sigma) =
             (self.config.weak_conditioning, self.config.motion_sigma);
         let weak = directions.map_or(Weak::default(), |d| d.weak(weak_conditioning, motion_sigma));
-        let predicts = self.velocity_known || recovering;
+        let starting = search == Search::Follow
+            && !self.velocity_known
+            && self.keyframes.is_empty()
+            && (relative.translation - predicted.translation).length() <= self.config.max_jump;
+        let predicts = self.velocity_known || recovering || starting;
         if let (Some(d), true) = (directions, weak.count > 0 && predicts) {
             let moved = relative.compose(&predicted.inverse());
             let omega = moved.quat().to_scaled_axis();
