@@ -281,7 +281,7 @@ impl Tracker {
             })
             .map(|turn| turned(glam::Vec3::ZERO, turn))
             .collect();
-        let spun = self.screen_and_refine(&spins, TURNS_REFINED, map);
+        let spun = self.screen_and_refine(&[(&spins, TURNS_REFINED)], map);
         let Some(ahead) = axes.ahead.filter(|_| spun.lost.is_some()) else {
             return spun;
         };
@@ -299,38 +299,38 @@ impl Tracker {
         // seen from every side screens alike from both, and the right pose
         // was left out for its mirror image across the table.
         let step = ORBIT_STEP_DEGREES.to_radians();
-        let mut best = Vec::new();
-        let mut iterations = spun.iterations;
-        for pivot in [ahead, ORBIT_FAR_PIVOT * ahead] {
+        let orbits = [ahead, ORBIT_FAR_PIVOT * ahead].map(|pivot| {
             let centre = glam::Vec3::Z * pivot;
             // Up to the first turn that carries the camera the whole way.
             let carried_by = |turn: f32| 2.0 * pivot * (turn / 2.0).sin();
             let turns = (1..).map(|i| i as f32 * step).take_while(|&turn| {
                 turn <= std::f32::consts::PI && carried_by(turn - step) < ORBIT_CARRY
             });
-            let orbits: Vec<Pose> = turns
+            turns
                 .flat_map(|turn| [turn, -turn])
                 .map(|turn| turned(centre, turn))
-                .collect();
-            let (screened, screening) = self.screen(&orbits, ORBITS_REFINED, map);
-            best.extend(screened);
-            iterations += screening;
-        }
-        let mut carried = self.relocalise_from(&best, &mut Vec::new(), false, map);
-        carried.iterations += iterations;
+                .collect::<Vec<Pose>>()
+        });
+        let mut carried = self.screen_and_refine(
+            &[(&orbits[0], ORBITS_REFINED), (&orbits[1], ORBITS_REFINED)],
+            map,
+        );
+        carried.iterations += spun.iterations;
         carried
     }
 
-    /// Each of `candidates` screened by ICP on the coarsest frame level
-    /// against a view at half the model's resolution, the best `refined`
-    /// refined: the verified pose the map confirms best.
-    fn screen_and_refine(
-        &mut self,
-        candidates: &[Pose],
-        refined: usize,
-        map: &dyn Mapper,
-    ) -> Tracked {
-        let (best, iterations) = self.screen(candidates, refined, map);
+    /// Each group of candidates screened by ICP on the coarsest frame level
+    /// against a view at half the model's resolution, apart from the other
+    /// groups, and its best (as many as the group says) kept; those kept
+    /// refined together: the verified pose the map confirms best.
+    fn screen_and_refine(&mut self, groups: &[(&[Pose], usize)], map: &dyn Mapper) -> Tracked {
+        let mut best = Vec::new();
+        let mut iterations = 0;
+        for &(candidates, kept) in groups {
+            let (screened, screening) = self.screen(candidates, kept, map);
+            best.extend(screened);
+            iterations += screening;
+        }
         let mut result = self.relocalise_from(&best, &mut Vec::new(), false, map);
         result.iterations += iterations;
         result
