@@ -638,18 +638,27 @@ fn ride_out_a_restart(name: &str, lease: &str, down: Duration, busy: bool) -> (P
     }
     let (report, fetched) = fetch(&dir, &url, name);
     for (mut process, who) in [(w1, "w1"), (t1, "t1")] {
-        let said = std::fs::read_to_string(dir.join(format!("{who}.log"))).unwrap();
+        // The map may be whole before a process has reconnected: the
+        // client waits up to 4 s between tries.
+        let log = dir.join(format!("{who}.log"));
+        let rode_out = |said: &str| {
+            // A request in flight may instead be answered once the bus is
+            // back, so not every outage fails one; one that did must pass.
+            said.contains("connected to the bus at")
+                && said.contains("again after")
+                && (!said.contains("trying again") || said.contains("the bus answers again"))
+        };
+        let waited = Instant::now();
+        let mut said = std::fs::read_to_string(&log).unwrap();
+        while !rode_out(&said) && waited.elapsed() < Duration::from_secs(20) {
+            std::thread::sleep(Duration::from_millis(100));
+            said = std::fs::read_to_string(&log).unwrap();
+        }
         assert!(
             process.0.try_wait().unwrap().is_none(),
             "{who} exited: {said}"
         );
-        assert!(said.contains("the bus at"), "{who}: {said}");
-        assert!(said.contains("again after"), "{who}: {said}");
-        // A request in flight may instead be answered once the bus is
-        // back, so not every outage fails one; one that did must pass.
-        if said.contains("trying again") {
-            assert!(said.contains("the bus answers again"), "{who}: {said}");
-        }
+        assert!(rode_out(&said), "{who}: {said}");
     }
     assert_tracked_as_reconstruct(&dir, &frames, &report, &fetched, 40);
     (dir, before)
