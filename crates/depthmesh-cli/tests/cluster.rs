@@ -642,7 +642,7 @@ fn ride_out_a_restart(name: &str, lease: &str, down: Duration, busy: bool) -> (P
         // client waits up to 4 s between tries.
         let log = dir.join(format!("{who}.log"));
         let rode_out = |said: &str| {
-            // A request in flight may instead be answered once the bus is
+            // A request made during the outage may be answered once the bus is
             // back, so not every outage fails one; one that did must pass.
             said.contains("connected to the bus at")
                 && said.contains("again after")

@@ -59,10 +59,11 @@ impl Outage {
 
 /// What a process says about its connection to the bus.
 ///
-/// A request in flight when the bus goes may be answered after it comes
-/// back (the client sends it again once reconnected, and acknowledgements
-/// are awaited for up to 30 s), so a process can ride out an outage with no
-/// request failing and [`Outage`] saying nothing. The client's own events
+/// A request made while the bus is gone is sent once the connection is
+/// back, and answered if that is within its timeout (10 s; 5 s for an
+/// acknowledgement), and a worker's heartbeat first waits for the lease
+/// keeper's round (see [`crate::keeper`]); so a process can ride out an
+/// outage with no request failing and [`Outage`] saying nothing. The client's own events
 /// tell every drop and every return of the connection, whatever the
 /// process was doing.
 #[derive(Clone, Debug)]
