@@ -1014,7 +1014,7 @@ impl Tracker {
         // seeds 0–11; sixteen random scenes, seeds 0–1) its poses were
         // never taken, and the kitchen's trajectories stay the same without
         // them; a start that is lost or weak still gets them.
-        if !self.velocity_known && self.keyframes.is_empty() {
+        if self.at_start() {
             if !self.aligned_well(&result) {
                 result = self.start_globally(map, result);
             }
@@ -1022,6 +1022,12 @@ impl Tracker {
             result = self.start_still(map, result);
         }
         result
+    }
+
+    /// Whether the run is at its start: no motion measured and no keyframe
+    /// yet, so "no motion" from the frame before is the only guess.
+    fn at_start(&self) -> bool {
+        !self.velocity_known && self.keyframes.is_empty()
     }
 
     /// Whether `t` was aligned, and conditioned at least as well as
@@ -1260,8 +1266,7 @@ impl Tracker {
             (self.config.weak_conditioning, self.config.motion_sigma);
         let weak = directions.map_or(Weak::default(), |d| d.weak(weak_conditioning, motion_sigma));
         let starting = search == Search::Follow
-            && !self.velocity_known
-            && self.keyframes.is_empty()
+            && self.at_start()
             && (relative.translation - predicted.translation).length() <= self.config.max_jump;
         let predicts = self.velocity_known || recovering || starting;
         if let (Some(d), true) = (directions, weak.count > 0 && predicts) {
