@@ -5,7 +5,7 @@
 
 use crate::error::{ClusterError, Result};
 use async_nats::Event;
-use std::sync::{Arc, Mutex};
+use std::sync::Mutex;
 use std::time::{Duration, Instant};
 
 /// How long a worker or a tracker keeps trying a bus it cannot reach before
@@ -63,14 +63,14 @@ impl Outage {
 /// back, and answered if that is within its timeout (10 s; 5 s for an
 /// acknowledgement), and a worker's heartbeat first waits for the lease
 /// keeper's round (see [`crate::keeper`]); so a process can ride out an
-/// outage with no request failing and [`Outage`] saying nothing. The client's own events
-/// tell every drop and every return of the connection, whatever the
-/// process was doing.
-#[derive(Clone, Debug)]
+/// outage with no request failing and [`Outage`] saying nothing. The
+/// client's own events tell every drop and every return of the
+/// connection, whatever the process was doing.
+#[derive(Debug)]
 pub struct ConnectionLog {
     url: String,
     /// When the connection dropped, while it is down.
-    lost: Arc<Mutex<Option<Instant>>>,
+    lost: Mutex<Option<Instant>>,
 }
 
 impl ConnectionLog {
@@ -78,7 +78,7 @@ impl ConnectionLog {
     pub fn new(url: &str) -> Self {
         ConnectionLog {
             url: url.to_string(),
-            lost: Arc::default(),
+            lost: Mutex::default(),
         }
     }
 
